@@ -1,0 +1,117 @@
+//! Errors of the registration and of cloud input/output.
+
+use std::path::PathBuf;
+
+/// Which input cloud an error is about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// The cloud that is moved (`P`).
+    Source,
+    /// The cloud that stays fixed and is represented by the SDF (`Q`).
+    Target,
+}
+
+impl std::fmt::Display for Role {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Role::Source => "source",
+            Role::Target => "target",
+        })
+    }
+}
+
+/// Why a registration could not be run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// Too few points to constrain a rigid motion or fit an SDF.
+    #[error("{role} cloud has {found} points; at least {min} are needed")]
+    TooFewPoints {
+        /// The cloud.
+        role: Role,
+        /// Points given.
+        found: usize,
+        /// Points needed.
+        min: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("{role} cloud: point {index} has a non-finite coordinate {point:?}")]
+    NonFinite {
+        /// The cloud.
+        role: Role,
+        /// Zero-based index of the point.
+        index: usize,
+        /// The offending point.
+        point: [f64; 3],
+    },
+    /// All points (nearly) coincide: there is no shape to register against.
+    #[error("{role} cloud has no extent: its bounding box's largest side is {extent}")]
+    NoExtent {
+        /// The cloud.
+        role: Role,
+        /// Largest bounding-box side, in the cloud's units.
+        extent: f64,
+    },
+    /// A setting is out of its valid range.
+    #[error("invalid setting `{name}`: {reason}")]
+    InvalidSetting {
+        /// Field name in the settings struct.
+        name: &'static str,
+        /// What was expected.
+        reason: String,
+    },
+    /// The initial guess is not a finite rigid transform.
+    #[error("initial guess is not a finite rigid transform")]
+    InvalidInit,
+    /// The worker thread pool could not be created.
+    #[error("could not create the thread pool: {0}")]
+    ThreadPool(String),
+}
+
+/// Why a point cloud could not be read or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum IoError {
+    /// The file could not be opened, read or created.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The system's error.
+        source: std::io::Error,
+    },
+    /// The extension names no supported format.
+    #[error("{path}: unknown point-cloud format {extension:?} (expected .ply, .xyz, .txt, .csv)")]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+        /// The extension found (may be empty).
+        extension: String,
+    },
+    /// The contents do not follow the format.
+    #[error("{path}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// One-based line number, where known.
+        line: Option<usize>,
+        /// What was found and what was expected.
+        message: String,
+    },
+    /// The file holds no points.
+    #[error("{path}: no points found")]
+    Empty {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A point has a NaN or infinite coordinate.
+    #[error("{path}{}: point {index} has a non-finite coordinate", line.map(|l| format!(":{l}")).unwrap_or_default())]
+    NonFinite {
+        /// The file.
+        path: PathBuf,
+        /// One-based line number, for text formats.
+        line: Option<usize>,
+        /// Zero-based point index.
+        index: usize,
+    },
+}

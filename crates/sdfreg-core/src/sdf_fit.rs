@@ -1,0 +1,388 @@
+//! Fitting the neural SDF Φ to the target cloud, self-supervised (no normals needed).
+//!
+//! Losses per Adam step (paper eq. 18, 18-1, 19, 20), all in the unit frame:
+//! - projection: a query `x` whose nearest target point is `t` is pulled there along the SDF,
+//!   `‖x − Φ(x) ∇Φ(x)/‖∇Φ(x)‖ − t‖²`, averaged separately over the perturbation queries and
+//!   over the accumulated moved-source queries (coarse-to-fine, eq. 18-1);
+//! - surface: `λ_q |Φ(q)|` on target points;
+//! - Eikonal: `λ_e (‖∇Φ(x)‖ − 1)²` on all queries.
+//!
+//! Perturbation queries are target points moved by `N(0, σ²)`, with σ per point the distance
+//! to its k-th neighbour (Neural-Pull); nearest target points come from a k-d tree (kiddo).
+//!
+//! Entry point: [`SdfFitter`].
+
+use kiddo::immutable::float::kdtree::ImmutableKdTree;
+use kiddo::SquaredEuclidean;
+use rand::seq::index::sample;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+use std::num::NonZeroUsize;
+
+use crate::mlp::{Mlp, MlpSettings, BLOCK};
+
+/// k-d tree over f32 points in the unit frame.
+pub type Tree = ImmutableKdTree<f32, u32, 3, 32>;
+
+/// Builds a [`Tree`] over `points`.
+pub fn build_tree(points: &[[f32; 3]]) -> Tree {
+    ImmutableKdTree::new_from_slice(points)
+}
+
+/// Settings of the SDF fit. Lengths are in normalised units (target's largest side = 1).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FitSettings {
+    /// Adam steps before registration starts. Default 500.
+    pub prefit_steps: usize,
+    /// Adam learning rate of the pre-fit. Default 2e-3.
+    pub prefit_lr: f32,
+    /// Adam steps in each coarse-to-fine alternation. Default 50.
+    pub refine_steps: usize,
+    /// Adam learning rate of the alternations. Default 1e-3.
+    pub refine_lr: f32,
+    /// Perturbation queries per Adam step. Default 1024.
+    pub batch_queries: usize,
+    /// Accumulated moved-source queries per Adam step (once any exist). Default 512.
+    pub batch_source: usize,
+    /// Target points per Adam step for the surface term. Default 512.
+    pub batch_surface: usize,
+    /// Size of the fixed pool of perturbation queries. Default 16384.
+    pub query_pool: usize,
+    /// σ of a query is the distance to this neighbour among `sigma_sample` target points.
+    /// Default 50.
+    pub sigma_neighbour: usize,
+    /// Target points the σ neighbourhoods and the pool are drawn from (density independent).
+    /// Default 1024.
+    pub sigma_sample: usize,
+    /// Weight λ_q of the surface term `|Φ(q)|`. Default 0.1.
+    pub lambda_surface: f32,
+    /// Weight λ_e of the Eikonal term. Default 0.001.
+    pub lambda_eikonal: f32,
+    /// At most this many moved-source queries are kept (oldest dropped first). Default 16384.
+    pub max_source_queries: usize,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            prefit_steps: 500,
+            prefit_lr: 2e-3,
+            refine_steps: 50,
+            refine_lr: 1e-3,
+            batch_queries: 1024,
+            batch_source: 512,
+            batch_surface: 512,
+            query_pool: 16384,
+            sigma_neighbour: 50,
+            sigma_sample: 1024,
+            lambda_surface: 0.1,
+            lambda_eikonal: 0.001,
+            max_source_queries: 16384,
+        }
+    }
+}
+
+/// Adam moments for a flat parameter vector.
+#[derive(Clone, Debug)]
+struct Adam {
+    m: Vec<f32>,
+    v: Vec<f32>,
+    t: i32,
+}
+
+impl Adam {
+    const B1: f32 = 0.9;
+    const B2: f32 = 0.999;
+    const EPS: f32 = 1e-8;
+
+    fn new(n: usize) -> Self {
+        Self { m: vec![0.0; n], v: vec![0.0; n], t: 0 }
+    }
+
+    fn step(&mut self, params: &mut [f32], grad: &[f32], lr: f32) {
+        self.t += 1;
+        let c1 = 1.0 - Self::B1.powi(self.t);
+        let c2 = 1.0 - Self::B2.powi(self.t);
+        let step = lr * c2.sqrt() / c1;
+        for ((p, g), (m, v)) in params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())) {
+            *m = Self::B1 * *m + (1.0 - Self::B1) * g;
+            *v = Self::B2 * *v + (1.0 - Self::B2) * g * g;
+            *p -= step * *m / (v.sqrt() + Self::EPS * c2.sqrt());
+        }
+    }
+}
+
+/// One query of the projection loss: the point, its nearest target point and its weight.
+#[derive(Clone, Copy, Debug)]
+struct Query {
+    x: [f32; 3],
+    t: [f32; 3],
+    w: f32,
+}
+
+/// Loss terms of the last Adam step, for monitoring.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FitLoss {
+    /// Mean projection loss over the perturbation queries (normalised units²).
+    pub projection: f64,
+    /// Total weighted loss.
+    pub total: f64,
+}
+
+/// The neural SDF of a target cloud and the state needed to keep fitting it.
+#[derive(Clone, Debug)]
+pub struct SdfFitter {
+    mlp: Mlp,
+    adam: Adam,
+    settings: FitSettings,
+    target: Vec<[f32; 3]>,
+    tree: Tree,
+    pool: Vec<([f32; 3], [f32; 3])>,
+    source_queries: Vec<([f32; 3], [f32; 3])>,
+    rng: ChaCha8Rng,
+    steps: usize,
+}
+
+/// Loss of one query and its derivatives: `w ‖x − Φ n − t‖² + w_e (‖g‖ − 1)²` with
+/// `g = ∇Φ(x)`, `n = g/‖g‖`. Returns `(projection term ‖·‖², total, ∂/∂Φ, ∂/∂g)`.
+fn query_loss(x: &[f32; 3], t: &[f32; 3], w: f32, we: f32, phi: f32, g: &[f32; 3]) -> (f32, f32, f32, [f32; 3]) {
+    let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
+    let n = [g[0] / gn, g[1] / gn, g[2] / gn];
+    let d = [x[0] - phi * n[0] - t[0], x[1] - phi * n[1] - t[1], x[2] - phi * n[2] - t[2]];
+    let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+    let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    let e = gn - 1.0;
+    // ∂/∂Φ ‖d‖² = −2 d·n; ∂/∂g ‖d‖² = −2Φ/‖g‖ (I − n nᵀ) d; ∂/∂g (‖g‖ − 1)² = 2 e n.
+    let a = -2.0 * w * phi / gn;
+    let dg = [0, 1, 2].map(|k| a * (d[k] - dn * n[k]) + 2.0 * we * e * n[k]);
+    (d2, w * d2 + we * e * e, -2.0 * w * dn, dg)
+}
+
+impl SdfFitter {
+    /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool.
+    /// `target` must hold at least 2 points.
+    pub fn new(target: Vec<[f32; 3]>, mlp: &MlpSettings, settings: &FitSettings, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let net = Mlp::new(mlp, &mut rng);
+        let tree = build_tree(&target);
+        let m = target.len();
+        let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
+        let centres: Vec<[f32; 3]> = if s >= m { target.clone() } else { sample(&mut rng, m, s).into_iter().map(|i| target[i]).collect() };
+        let centre_tree = build_tree(&centres);
+        let k = settings.sigma_neighbour.clamp(1, centres.len() - 1);
+        let sigmas: Vec<f32> = centres
+            .par_iter()
+            .map(|c| {
+                let nn = centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
+                nn.last().map(|n| n.distance.sqrt()).unwrap_or(0.0).max(1e-4)
+            })
+            .collect();
+        let queries: Vec<[f32; 3]> = (0..settings.query_pool)
+            .map(|i| {
+                let j = i % centres.len();
+                let c = centres[j];
+                let mut q = [0.0f32; 3];
+                for a in 0..3 {
+                    let n: f32 = StandardNormal.sample(&mut rng);
+                    q[a] = c[a] + sigmas[j] * n;
+                }
+                q
+            })
+            .collect();
+        let pool = queries.par_iter().map(|q| (*q, target[tree.nearest_one::<SquaredEuclidean>(q).item as usize])).collect();
+        Self {
+            adam: Adam::new(net.num_params()),
+            mlp: net,
+            settings: settings.clone(),
+            target,
+            tree,
+            pool,
+            source_queries: Vec::new(),
+            rng,
+            steps: 0,
+        }
+    }
+
+    /// The current network.
+    pub fn mlp(&self) -> &Mlp {
+        &self.mlp
+    }
+
+    /// The target points (unit frame).
+    pub fn target(&self) -> &[[f32; 3]] {
+        &self.target
+    }
+
+    /// The k-d tree over the target points.
+    pub fn tree(&self) -> &Tree {
+        &self.tree
+    }
+
+    /// Adam steps taken so far.
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Distance (unit frame) from `p` to the nearest target point.
+    pub fn nearest_distance(&self, p: &[f32; 3]) -> f32 {
+        self.tree.nearest_one::<SquaredEuclidean>(p).distance.sqrt()
+    }
+
+    /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
+    pub fn add_source_queries(&mut self, points: &[[f32; 3]]) {
+        let new: Vec<([f32; 3], [f32; 3])> = points.par_iter().map(|q| (*q, self.target[self.tree.nearest_one::<SquaredEuclidean>(q).item as usize])).collect();
+        self.source_queries.extend(new);
+        let max = self.settings.max_source_queries.max(1);
+        if self.source_queries.len() > max {
+            let drop = self.source_queries.len() - max;
+            self.source_queries.drain(..drop);
+        }
+    }
+
+    /// Runs `steps` Adam steps at learning rate `lr`; returns the loss of the last step.
+    pub fn train(&mut self, steps: usize, lr: f32) -> FitLoss {
+        let mut loss = FitLoss::default();
+        for _ in 0..steps {
+            loss = self.step(lr);
+        }
+        loss
+    }
+
+    fn step(&mut self, lr: f32) -> FitLoss {
+        let st = &self.settings;
+        let nq = st.batch_queries.min(self.pool.len());
+        let ns = if self.source_queries.is_empty() { 0 } else { st.batch_source };
+        let nt = st.batch_surface;
+        let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
+        let mut queries = Vec::with_capacity(nq + ns);
+        for _ in 0..nq {
+            let (x, t) = self.pool[self.rng.random_range(0..self.pool.len())];
+            queries.push(Query { x, t, w: wq });
+        }
+        for _ in 0..ns {
+            let (x, t) = self.source_queries[self.rng.random_range(0..self.source_queries.len())];
+            queries.push(Query { x, t, w: ws_ });
+        }
+        let surface: Vec<[f32; 3]> = (0..nt).map(|_| self.target[self.rng.random_range(0..self.target.len())]).collect();
+        let we = st.lambda_eikonal / queries.len().max(1) as f32;
+        let wsurf = st.lambda_surface / nt.max(1) as f32;
+        let mlp = &self.mlp;
+        let n_params = mlp.num_params();
+
+        // One task per block; results come back in block order and are summed in that order,
+        // so the step does not depend on the number of threads.
+        let q_blocks: Vec<&[Query]> = queries.chunks(BLOCK).collect();
+        let s_blocks: Vec<&[[f32; 3]]> = surface.chunks(BLOCK).collect();
+        let parts: Vec<(f64, f64, Vec<f32>)> = (0..q_blocks.len() + s_blocks.len())
+            .into_par_iter()
+            .map_init(
+                || mlp.workspace(),
+                |ws, i| {
+                    let mut grad = vec![0.0f32; n_params];
+                    if i < q_blocks.len() {
+                        let block = q_blocks[i];
+                        let xs: Vec<[f32; 3]> = block.iter().map(|q| q.x).collect();
+                        mlp.forward_block(&xs, true, ws);
+                        let mut dphi = vec![0.0f32; block.len()];
+                        let mut dgrad = vec![[0.0f32; 3]; block.len()];
+                        let (mut total, mut proj) = (0.0f64, 0.0f64);
+                        for (j, q) in block.iter().enumerate() {
+                            let (d2, l, dp, dg) = query_loss(&q.x, &q.t, q.w, we, ws.value(j), &ws.gradient(j));
+                            total += l as f64;
+                            if q.w == wq {
+                                proj += d2 as f64 * wq as f64;
+                            }
+                            dphi[j] = dp;
+                            dgrad[j] = dg;
+                        }
+                        mlp.backward_block(ws, &dphi, &dgrad, &mut grad);
+                        (total, proj, grad)
+                    } else {
+                        let block = s_blocks[i - q_blocks.len()];
+                        mlp.forward_block(block, false, ws);
+                        let mut total = 0.0f64;
+                        let dphi: Vec<f32> = (0..block.len())
+                            .map(|j| {
+                                let phi = ws.value(j);
+                                total += (wsurf * phi.abs()) as f64;
+                                wsurf * phi.signum()
+                            })
+                            .collect();
+                        mlp.backward_block(ws, &dphi, &[], &mut grad);
+                        (total, 0.0, grad)
+                    }
+                },
+            )
+            .collect();
+        let mut grad = vec![0.0f32; n_params];
+        let mut loss = FitLoss::default();
+        for (total, proj, g) in parts {
+            loss.total += total;
+            loss.projection += proj;
+            for (a, b) in grad.iter_mut().zip(&g) {
+                *a += b;
+            }
+        }
+        self.adam.step(self.mlp.params_mut(), &grad, lr);
+        self.steps += 1;
+        loss
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a sphere of radius 0.4 (unit frame).
+    fn sphere(n: usize) -> Vec<[f32; 3]> {
+        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+        (0..n)
+            .map(|i| {
+                let y = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+                let r = (1.0 - y * y).sqrt();
+                let th = golden * i as f32;
+                [0.4 * r * th.cos(), 0.4 * y, 0.4 * r * th.sin()]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn query_loss_derivatives_match_finite_differences() {
+        let (x, t) = ([0.3f32, -0.2, 0.5], [0.25f32, -0.1, 0.42]);
+        for (phi, g) in [(0.07f32, [0.5f32, -0.9, 0.3]), (-0.02, [0.1, 0.2, -1.3]), (0.2, [1.5, 0.0, 0.1])] {
+            let (_, _, dphi, dg) = query_loss(&x, &t, 0.7, 0.05, phi, &g);
+            let h = 1e-3f32;
+            let f = |p: f32, gg: [f32; 3]| query_loss(&x, &t, 0.7, 0.05, p, &gg).1 as f64;
+            let fd_phi = (f(phi + h, g) - f(phi - h, g)) / (2.0 * h as f64);
+            assert!((fd_phi - dphi as f64).abs() < 1e-3, "∂/∂Φ: {fd_phi} vs {dphi}");
+            for k in 0..3 {
+                let (mut a, mut b) = (g, g);
+                a[k] += h;
+                b[k] -= h;
+                let fd = (f(phi, a) - f(phi, b)) / (2.0 * h as f64);
+                assert!((fd - dg[k] as f64).abs() < 1e-3, "∂/∂g{k}: {fd} vs {}", dg[k]);
+            }
+        }
+    }
+
+    #[test]
+    fn fitted_sdf_of_a_sphere_is_close_to_the_true_distance() {
+        let target = sphere(1024);
+        let mut fit = SdfFitter::new(target.clone(), &MlpSettings::default(), &FitSettings::default(), 1);
+        let first = fit.train(1, 2e-3);
+        let last = fit.train(300, 2e-3);
+        assert!(last.projection < first.projection * 0.5, "loss {first:?} → {last:?}");
+        // On the surface and at ±0.05 along the normal.
+        let mut worst: f32 = 0.0;
+        for p in target.iter().step_by(37) {
+            for off in [-0.05f32, 0.0, 0.05] {
+                let s = (0.4 + off) / 0.4;
+                let (v, _) = fit.mlp().eval(&[[p[0] * s, p[1] * s, p[2] * s]], false);
+                worst = worst.max((v[0] - off).abs());
+            }
+        }
+        assert!(worst < 0.02, "worst |Φ − d| near the sphere = {worst}");
+    }
+}

@@ -1,0 +1,212 @@
+//! Rigid motions: the SO(3) and SE(3) exponential and logarithm maps.
+//!
+//! **Twist order** (used everywhere in sdfreg): a twist `ξ = [ω; v]` is a 6-vector with the
+//! rotation part `ω` (axis × angle, radians) first and the translation part `v` second.
+//! Poses are [`Isometry3<f64>`] values; an update `δ` is applied on the **left**,
+//! `T ← exp(δ^) · T`, i.e. in the frame the pose maps into (the target frame during
+//! registration). This is the paper's eq. 13.
+//!
+//! Entry points: [`hat`], [`vee`], [`exp_so3`], [`log_so3`], [`exp_se3`], [`log_se3`],
+//! [`rotation_angle`] (geodesic distance between rotations).
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+
+/// Below this angle (radians) the maps use Taylor expansions instead of the closed forms.
+const SMALL_ANGLE: f64 = 1e-5;
+/// Within this distance of π (radians) the SO(3) log uses the symmetric-part formula.
+const NEAR_PI: f64 = 1e-3;
+
+/// The skew-symmetric matrix `[w]×` with `[w]× x = w × x`.
+pub fn hat(w: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -w.z, w.y, w.z, 0.0, -w.x, -w.y, w.x, 0.0)
+}
+
+/// Inverse of [`hat`]: reads `w` from the skew part of `m` (its symmetric part is ignored).
+pub fn vee(m: &Matrix3<f64>) -> Vector3<f64> {
+    0.5 * Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)])
+}
+
+/// Rodrigues' formula: the rotation by angle `|w|` (radians) about `w/|w|`.
+pub fn exp_so3(w: &Vector3<f64>) -> Rotation3<f64> {
+    let theta2 = w.norm_squared();
+    let theta = theta2.sqrt();
+    let k = hat(w);
+    let (a, b) = if theta < SMALL_ANGLE {
+        (1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0)
+    } else {
+        (theta.sin() / theta, (1.0 - theta.cos()) / theta2)
+    };
+    let m = Matrix3::identity() + a * k + b * k * k;
+    Rotation3::from_matrix_unchecked(m)
+}
+
+/// The rotation vector `w` (radians, `|w| ≤ π`) with `exp_so3(w) = r`.
+pub fn log_so3(r: &Rotation3<f64>) -> Vector3<f64> {
+    let m = r.matrix();
+    let cos = ((m.trace() - 1.0) * 0.5).clamp(-1.0, 1.0);
+    let theta = cos.acos();
+    let skew = vee(m);
+    if theta < SMALL_ANGLE {
+        // sin θ / θ ≈ 1 − θ²/6: first-order accurate skew part.
+        return skew * (1.0 + theta * theta / 6.0);
+    }
+    if std::f64::consts::PI - theta > NEAR_PI {
+        return skew * (theta / theta.sin());
+    }
+    // Near π the skew part vanishes; read the axis from R + Rᵀ = 2cosθ I + 2(1−cosθ) aaᵀ.
+    let s = (m + m.transpose()) * 0.5 - Matrix3::identity() * cos;
+    let denom = 1.0 - cos;
+    let diag = Vector3::new(s[(0, 0)], s[(1, 1)], s[(2, 2)]) / denom;
+    // Take the largest component for numerical stability, then the others from off-diagonals.
+    let i = diag.imax();
+    let mut axis = Vector3::zeros();
+    axis[i] = diag[i].max(0.0).sqrt();
+    for j in 0..3 {
+        if j != i {
+            axis[j] = s[(i, j)] / denom / axis[i];
+        }
+    }
+    axis.normalize_mut();
+    // Fix the sign with the (small) skew part so exp(log(R)) = R also for θ slightly below π.
+    if axis.dot(&skew) < 0.0 {
+        axis = -axis;
+    }
+    axis * theta
+}
+
+/// `V(w)`, the left Jacobian of SO(3): the translation of `exp_se3([w; v])` is `V(w) v`.
+fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
+    let theta2 = w.norm_squared();
+    let theta = theta2.sqrt();
+    let k = hat(w);
+    let (b, c) = if theta < SMALL_ANGLE {
+        (0.5 - theta2 / 24.0, 1.0 / 6.0 - theta2 / 120.0)
+    } else {
+        (
+            (1.0 - theta.cos()) / theta2,
+            (theta - theta.sin()) / (theta2 * theta),
+        )
+    };
+    Matrix3::identity() + b * k + c * k * k
+}
+
+/// The rigid motion `exp(ξ^)` of a twist `ξ = [ω; v]` (radians; length units of `v`).
+pub fn exp_se3(xi: &Vector6<f64>) -> Isometry3<f64> {
+    let w = Vector3::new(xi[0], xi[1], xi[2]);
+    let v = Vector3::new(xi[3], xi[4], xi[5]);
+    let r = exp_so3(&w);
+    let t = left_jacobian(&w) * v;
+    Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r))
+}
+
+/// The twist `ξ = [ω; v]` with `exp_se3(ξ) = T` and `|ω| ≤ π`.
+pub fn log_se3(t: &Isometry3<f64>) -> Vector6<f64> {
+    let w = log_so3(&t.rotation.to_rotation_matrix());
+    // V(w) is invertible for |w| < 2π; solve rather than form the closed-form inverse.
+    let v = left_jacobian(&w)
+        .lu()
+        .solve(&t.translation.vector)
+        .unwrap_or_else(|| t.translation.vector);
+    Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z)
+}
+
+/// Geodesic angle (radians, in `[0, π]`) of the relative rotation `aᵀ b`.
+pub fn rotation_angle(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
+    let m = a.matrix().transpose() * b.matrix();
+    ((m.trace() - 1.0) * 0.5).clamp(-1.0, 1.0).acos()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::PI;
+
+    fn vectors() -> Vec<Vector3<f64>> {
+        let axes = [
+            Vector3::new(1.0, 0.0, 0.0),
+            Vector3::new(0.3, -0.8, 0.5).normalize(),
+            Vector3::new(-0.2, 0.1, 0.97).normalize(),
+        ];
+        let angles = [0.0, 1e-9, 1e-6, 1e-3, 0.5, 2.0, PI - 1e-2, PI - 1e-4, PI - 1e-7, PI];
+        axes.iter()
+            .flat_map(|a| angles.iter().map(move |t| a * *t))
+            .collect()
+    }
+
+    #[test]
+    fn so3_round_trip_including_near_singular_angles() {
+        for w in vectors() {
+            let r = exp_so3(&w);
+            // Orthonormal with determinant 1.
+            let m = r.matrix();
+            assert!((m.transpose() * m - Matrix3::identity()).norm() < 1e-12);
+            assert!((m.determinant() - 1.0).abs() < 1e-12);
+            let back = exp_so3(&log_so3(&r));
+            let err = rotation_angle(&r, &back);
+            assert!(err < 1e-7, "w = {w:?}: exp(log(R)) off by {err} rad");
+            let theta = w.norm();
+            if theta < PI - 1e-3 {
+                assert!((log_so3(&r) - w).norm() < 1e-9 * (1.0 + theta), "w = {w:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn exp_so3_matches_nalgebra_axis_angle() {
+        for w in vectors() {
+            let ours = exp_so3(&w);
+            let theirs = Rotation3::from_scaled_axis(w);
+            assert!((ours.matrix() - theirs.matrix()).norm() < 1e-12, "w = {w:?}");
+        }
+    }
+
+    #[test]
+    fn se3_round_trip_and_composition() {
+        let vs = [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(0.4, -1.2, 2.5),
+            Vector3::new(-3.0, 0.1, 0.01),
+        ];
+        for w in vectors() {
+            for v in vs {
+                let xi = Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z);
+                let t = exp_se3(&xi);
+                let back = exp_se3(&log_se3(&t));
+                assert!(rotation_angle(&t.rotation.to_rotation_matrix(), &back.rotation.to_rotation_matrix()) < 1e-7);
+                assert!((t.translation.vector - back.translation.vector).norm() < 1e-6, "xi = {xi:?}");
+            }
+        }
+        // Twists along one axis commute: exp(a ξ) exp(b ξ) = exp((a + b) ξ).
+        let xi = Vector6::new(0.3, -0.2, 0.5, 1.0, 2.0, -0.5);
+        let lhs = exp_se3(&(xi * 0.4)) * exp_se3(&(xi * 0.9));
+        let rhs = exp_se3(&(xi * 1.3));
+        assert!((lhs.to_homogeneous() - rhs.to_homogeneous()).norm() < 1e-12);
+        // exp(ξ) exp(−ξ) = identity.
+        let id = exp_se3(&xi) * exp_se3(&(-xi));
+        assert!((id.to_homogeneous() - nalgebra::Matrix4::identity()).norm() < 1e-12);
+    }
+
+    #[test]
+    fn exp_se3_is_the_matrix_exponential() {
+        // Compare with a truncated power series of the 4×4 twist matrix.
+        let xi = Vector6::new(0.7, -0.4, 0.2, 0.3, -1.0, 0.8);
+        let mut x = nalgebra::Matrix4::zeros();
+        x.fixed_view_mut::<3, 3>(0, 0).copy_from(&hat(&Vector3::new(xi[0], xi[1], xi[2])));
+        x.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(xi[3], xi[4], xi[5]));
+        let mut term = nalgebra::Matrix4::identity();
+        let mut sum = term;
+        for k in 1..40 {
+            term = term * x / k as f64;
+            sum += term;
+        }
+        assert!((exp_se3(&xi).to_homogeneous() - sum).norm() < 1e-12);
+    }
+
+    #[test]
+    fn hat_vee_round_trip() {
+        let w = Vector3::new(0.1, -2.0, 3.5);
+        assert_eq!(vee(&hat(&w)), w);
+        let x = Vector3::new(-1.0, 0.5, 2.0);
+        assert!((hat(&w) * x - w.cross(&x)).norm() < 1e-15);
+    }
+}
