@@ -1,7 +1,39 @@
-//! sdfreg-core: correspondence-free rigid registration by a neural signed distance function.
+//! # sdfreg-core
+//!
+//! Correspondence-free rigid point-cloud registration by a neural signed distance function
+//! (SDFReg, section 3 of the paper in `shared/paper`). The target cloud is represented by a small
+//! MLP SDF Φ fitted to it; the source is moved by damped Levenberg–Marquardt on SE(3) so that
+//! `Σ Φ(R pᵢ + t)²` is minimal — no point correspondences, no nearest-neighbour search in the
+//! optimisation loop.
+//!
+//! ```no_run
+//! use sdfreg_core::{io::read_point_cloud, register, RegisterSettings};
+//! let source = read_point_cloud("source.ply")?;
+//! let target = read_point_cloud("target.ply")?;
+//! let result = register(&source, &target, None, &RegisterSettings::default())?;
+//! println!("{}", result.matrix()); // maps source coordinates into the target frame
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! Modules: [`register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
+//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`se3`]
+//! (exp/log maps), [`cloud`] (normalisation), [`io`] (PLY/XYZ), [`protocol`] (the paper's
+//! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
 #![warn(missing_docs)]
+
 pub mod cloud;
 pub mod error;
+pub mod io;
+pub mod lm;
 pub mod mlp;
+pub mod protocol;
+pub mod register;
 pub mod sdf_fit;
 pub mod se3;
+pub mod shapes;
+
+pub use error::{Error, IoError, Role};
+pub use lm::{Kernel, LmSettings};
+pub use mlp::MlpSettings;
+pub use register::{register, register_with_progress, RegisterSettings, Registration, Stage, StopReason};
+pub use sdf_fit::FitSettings;

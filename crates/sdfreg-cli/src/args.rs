@@ -1,0 +1,115 @@
+//! Command-line flags, turned into validated settings in one place.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand};
+use sdfreg_core::RegisterSettings;
+
+/// Correspondence-free rigid point-cloud registration by a neural signed distance function.
+#[derive(Parser, Debug)]
+#[command(name = "sdfreg", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Register SOURCE onto TARGET; print the 4×4 transform mapping source into target.
+    Register(RegisterArgs),
+    /// Register a built-in procedural shape against a moved copy and print the errors.
+    Demo(DemoArgs),
+    /// Evaluate on the paper's ModelNet40 protocols over a folder of shapes.
+    Eval(EvalArgs),
+}
+
+/// Settings shared by every command that registers.
+#[derive(Args, Debug, Clone)]
+pub struct Common {
+    /// Seed of every random choice (equal seeds give identical results).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Worker threads; 0 = one per core. Results do not depend on it.
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Coarse-to-fine alternations of SDF refinement and LM steps.
+    #[arg(long)]
+    pub alternations: Option<usize>,
+    /// Adam steps of the SDF pre-fit.
+    #[arg(long)]
+    pub prefit_steps: Option<usize>,
+    /// Robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
+    #[arg(long)]
+    pub robust_scale: Option<f64>,
+    /// Skip the 24-rotation multi-start (centroid alignment only).
+    #[arg(long)]
+    pub no_multistart: bool,
+}
+
+impl Common {
+    pub fn settings(&self) -> RegisterSettings {
+        let mut s = RegisterSettings { seed: self.seed, threads: self.threads, robust_scale: self.robust_scale, multistart: !self.no_multistart, ..Default::default() };
+        if let Some(a) = self.alternations {
+            s.alternations = a;
+        }
+        if let Some(p) = self.prefit_steps {
+            s.fit.prefit_steps = p;
+        }
+        s
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct RegisterArgs {
+    /// Cloud to move (.ply, .xyz, .txt, .csv).
+    pub source: PathBuf,
+    /// Fixed cloud (.ply, .xyz, .txt, .csv).
+    pub target: PathBuf,
+    /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
+    #[arg(long, short)]
+    pub output: Option<PathBuf>,
+    /// Write the moved source cloud here (.ply or text).
+    #[arg(long)]
+    pub aligned: Option<PathBuf>,
+    /// Initial guess: a text file with a 4×4 matrix (source into target); skips the multi-start.
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Overwrite --output / --aligned if they exist.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Points in the procedural shape.
+    #[arg(long, default_value_t = 1024)]
+    pub points: usize,
+    /// Rotation of the copy, degrees about a fixed oblique axis.
+    #[arg(long, default_value_t = 40.0)]
+    pub angle: f64,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// Folder searched recursively for .ply shapes (e.g. ../shared/data/modelnet40-half1).
+    #[arg(long)]
+    pub shapes: PathBuf,
+    /// clean, noise, partial, density or all.
+    #[arg(long, default_value = "all")]
+    pub protocol: String,
+    /// Pairs per protocol (shapes are used in turn).
+    #[arg(long, default_value_t = 12)]
+    pub pairs: usize,
+    /// Keep every pair's numbers in this JSON file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Overwrite --json if it exists.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub common: Common,
+}

@@ -1,0 +1,377 @@
+//! Registration: the coarse-to-fine loop that moves the source onto the target's neural SDF.
+//!
+//! Steps of [`register`] (paper Sec. 3.4; schedule from the prototype's measurements):
+//! 1. validate both clouds; normalise with the target's bounding-box centre and largest side;
+//! 2. pre-fit Φ on the target ([`FitSettings::prefit_steps`]);
+//! 3. initial pose: the caller's guess, or centroid alignment plus a multi-start over the 24
+//!    rotations of the cube group, each refined by a few LM steps on the frozen Φ, keeping the
+//!    lowest cost;
+//! 4. `alternations` times: add the moved source to Φ's queries (eq. 18-1), refine Φ, take
+//!    `lm_steps_per_alternation` LM steps;
+//! 5. final LM steps on the frozen Φ until converged;
+//! 6. map the pose back to the user's frame and measure fitness, inlier RMSE and JᵀJ there.
+//!
+//! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
+//! `p_target = R p_source + t`, in the units of the inputs.
+
+use std::time::{Duration, Instant};
+
+use kiddo::SquaredEuclidean;
+use nalgebra::{Isometry3, Matrix3, Matrix4, Matrix6, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+use rand::seq::index::sample;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::cloud::{centroid, validate, Normalization};
+use crate::error::{Error, Role};
+use crate::lm::{Kernel, Lm, LmSettings, StepOutcome};
+use crate::mlp::MlpSettings;
+use crate::sdf_fit::{FitSettings, SdfFitter};
+
+/// Fewest points accepted in either cloud.
+pub const MIN_POINTS: usize = 10;
+
+/// All settings of a registration. Lengths marked "normalised" are relative to the target's
+/// largest bounding-box side (1 = the whole target).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RegisterSettings {
+    /// The SDF network.
+    pub mlp: MlpSettings,
+    /// The SDF fit.
+    pub fit: FitSettings,
+    /// The Levenberg–Marquardt solver.
+    pub lm: LmSettings,
+    /// Coarse-to-fine alternations of SDF refinement and LM steps. Default 10.
+    pub alternations: usize,
+    /// LM steps per alternation. Default 2.
+    pub lm_steps_per_alternation: usize,
+    /// LM steps at most on the final, frozen SDF. Default 10.
+    pub final_lm_steps: usize,
+    /// Without an initial guess: try the 24 cube-group rotations about the centroid.
+    /// Default true (false: centroid alignment only).
+    pub multistart: bool,
+    /// LM steps per multi-start candidate. Default 5.
+    pub multistart_lm_steps: usize,
+    /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
+    pub max_source_points: usize,
+    /// Target points used by the fit at most; more are subsampled (seeded). Default 100000.
+    pub max_target_points: usize,
+    /// Robust kernel scale, normalised units; `None` = plain least squares. Default None.
+    pub robust_scale: Option<f64>,
+    /// A source point counts as an inlier (fitness, inlier RMSE) when its nearest target point
+    /// is closer than this, normalised units. Default 0.02.
+    pub inlier_distance: f64,
+    /// Seed of every random choice; equal seeds give identical results. Default 0.
+    pub seed: u64,
+    /// Worker threads, 0 = one per core. The result does not depend on it. Default 0.
+    pub threads: usize,
+}
+
+impl Default for RegisterSettings {
+    fn default() -> Self {
+        Self {
+            mlp: MlpSettings::default(),
+            fit: FitSettings::default(),
+            lm: LmSettings::default(),
+            alternations: 10,
+            lm_steps_per_alternation: 2,
+            final_lm_steps: 10,
+            multistart: true,
+            multistart_lm_steps: 5,
+            max_source_points: 4096,
+            max_target_points: 100_000,
+            robust_scale: None,
+            inlier_distance: 0.02,
+            seed: 0,
+            threads: 0,
+        }
+    }
+}
+
+impl RegisterSettings {
+    fn validate(&self) -> Result<(), Error> {
+        let bad = |name, reason: &str| Err(Error::InvalidSetting { name, reason: reason.into() });
+        if self.mlp.width == 0 || self.mlp.depth == 0 {
+            return bad("mlp", "width and depth must be at least 1");
+        }
+        if !(self.mlp.beta > 0.0 && self.mlp.beta.is_finite()) {
+            return bad("mlp.beta", "must be a positive finite number");
+        }
+        if !(self.fit.prefit_lr > 0.0 && self.fit.refine_lr > 0.0) {
+            return bad("fit.*_lr", "learning rates must be positive");
+        }
+        if self.fit.batch_queries == 0 || self.fit.query_pool == 0 {
+            return bad("fit.batch_queries", "needs at least one query");
+        }
+        if self.max_source_points < MIN_POINTS || self.max_target_points < MIN_POINTS {
+            return bad("max_*_points", "must be at least 10");
+        }
+        if !(self.inlier_distance > 0.0) {
+            return bad("inlier_distance", "must be positive");
+        }
+        if let Some(c) = self.robust_scale {
+            if !(c > 0.0 && c.is_finite()) {
+                return bad("robust_scale", "must be a positive finite number");
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Why the registration stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[non_exhaustive]
+pub enum StopReason {
+    /// The last LM step was below both tolerances.
+    SmallStep,
+    /// No damping lowered the cost any more: a (local) minimum.
+    NoDecrease,
+    /// `final_lm_steps` ran out before convergence.
+    MaxIterations,
+}
+
+/// Progress reported while registering.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Stage {
+    /// Pre-fitting the SDF (Adam steps done, total).
+    Prefit(usize, usize),
+    /// Multi-start over initial rotations.
+    Multistart,
+    /// Coarse-to-fine alternation (done, total).
+    Alternation(usize, usize),
+    /// Final LM on the frozen SDF.
+    Final,
+}
+
+/// The outcome of [`register`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Registration {
+    /// Maps source coordinates into the target frame (`p_target = R p_source + t`), user units.
+    pub t_target_source: Isometry3<f64>,
+    /// Whether the final LM converged (small step or no further decrease).
+    pub converged: bool,
+    /// Why it stopped.
+    pub stop_reason: StopReason,
+    /// LM iterations in total (multi-start excluded).
+    pub iterations: usize,
+    /// Mean squared SDF value of the moved source points, user units².
+    pub cost: f64,
+    /// Fraction of source points whose nearest target point is within the inlier distance.
+    pub fitness: f64,
+    /// RMSE of the inliers' nearest-neighbour distances, user units.
+    pub inlier_rmse: f64,
+    /// The inlier distance used, user units.
+    pub inlier_distance: f64,
+    /// `JᵀJ` (6×6) at the result in the target frame, twist `[ω (rad); v (user units)]` about the
+    /// target origin: the information matrix of a left perturbation of `t_target_source`.
+    pub information: Matrix6<f64>,
+    /// Wall time.
+    pub time: Duration,
+}
+
+impl Registration {
+    /// `t_target_source` as a homogeneous 4×4 matrix.
+    pub fn matrix(&self) -> Matrix4<f64> {
+        self.t_target_source.to_homogeneous()
+    }
+}
+
+/// The 24 rotations of the cube group: signed permutation matrices with determinant +1,
+/// the identity first.
+pub fn cube_rotations() -> Vec<Rotation3<f64>> {
+    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let mut out = Vec::with_capacity(24);
+    for p in perms {
+        for signs in 0..8 {
+            let mut m = Matrix3::zeros();
+            for (row, &col) in p.iter().enumerate() {
+                m[(row, col)] = if signs >> row & 1 == 1 { -1.0 } else { 1.0 };
+            }
+            if m.determinant() > 0.0 {
+                out.push(Rotation3::from_matrix_unchecked(m));
+            }
+        }
+    }
+    out
+}
+
+fn subsample(points: &[Point3<f64>], max: usize, rng: &mut ChaCha8Rng) -> Vec<Point3<f64>> {
+    if points.len() <= max {
+        return points.to_vec();
+    }
+    let mut idx = sample(rng, points.len(), max).into_vec();
+    idx.sort_unstable();
+    idx.into_iter().map(|i| points[i]).collect()
+}
+
+fn to_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
+    points
+        .iter()
+        .map(|p| {
+            let x = pose * p;
+            [x.x as f32, x.y as f32, x.z as f32]
+        })
+        .collect()
+}
+
+/// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
+/// target) replaces the multi-start when given.
+pub fn register(source: &[Point3<f64>], target: &[Point3<f64>], init: Option<&Isometry3<f64>>, settings: &RegisterSettings) -> Result<Registration, Error> {
+    register_with_progress(source, target, init, settings, &|_| {})
+}
+
+/// [`register`] with a progress callback (called from the calling thread).
+pub fn register_with_progress(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    settings.validate()?;
+    validate(source, Role::Source, MIN_POINTS)?;
+    validate(target, Role::Target, MIN_POINTS)?;
+    if let Some(t) = init {
+        if !t.to_homogeneous().iter().all(|v| v.is_finite()) {
+            return Err(Error::InvalidInit);
+        }
+    }
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(settings.threads).build().map_err(|e| Error::ThreadPool(e.to_string()))?;
+    pool.install(|| run(source, target, init, settings, progress))
+}
+
+fn run(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    s: &RegisterSettings,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let start = Instant::now();
+    let norm = Normalization::from_target(target)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
+    let src_unit: Vec<Point3<f64>> = subsample(source, s.max_source_points, &mut rng).iter().map(|p| norm.to_unit_f64(p)).collect();
+    let tgt_unit: Vec<[f32; 3]> = subsample(target, s.max_target_points, &mut rng).iter().map(|p| norm.to_unit(p)).collect();
+    let (src_lo, src_hi) = crate::cloud::bounding_box(&src_unit).expect("validated non-empty");
+    if (src_hi - src_lo).max() < 1e-9 {
+        return Err(Error::NoExtent { role: Role::Source, extent: (src_hi - src_lo).max() * norm.scale });
+    }
+    let kernel = s.robust_scale.map_or(Kernel::L2, Kernel::GemanMcClure);
+
+    let mut fit = SdfFitter::new(tgt_unit, &s.mlp, &s.fit, s.seed ^ 0x5DF);
+    let chunk = 50.max(s.fit.prefit_steps / 10);
+    let mut done = 0;
+    while done < s.fit.prefit_steps {
+        let n = chunk.min(s.fit.prefit_steps - done);
+        fit.train(n, s.fit.prefit_lr);
+        done += n;
+        progress(Stage::Prefit(done, s.fit.prefit_steps));
+    }
+
+    // Initial pose, unit frame.
+    let pose0 = match init {
+        Some(t) => norm.pose_to_unit(t),
+        None => {
+            progress(Stage::Multistart);
+            let c_src = centroid(&src_unit).coords;
+            let c_tgt: Vector3<f64> = fit.target().iter().map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)).sum::<Vector3<f64>>() / fit.target().len() as f64;
+            let rotations = if s.multistart { cube_rotations() } else { vec![Rotation3::identity()] };
+            let mlp = fit.mlp();
+            let candidates: Vec<(f64, Isometry3<f64>)> = rotations
+                .par_iter()
+                .map(|r| {
+                    let q = UnitQuaternion::from_rotation_matrix(r);
+                    let t = Translation3::from(c_tgt - r * c_src);
+                    let mut lm = Lm::new(Isometry3::from_parts(t, q), &s.lm);
+                    for _ in 0..s.multistart_lm_steps {
+                        let outcome = lm.step(mlp, &src_unit, kernel);
+                        if lm.is_converged(&outcome) {
+                            break;
+                        }
+                    }
+                    let c = crate::lm::cost(mlp, &src_unit, &lm.pose, kernel);
+                    (c, lm.pose)
+                })
+                .collect();
+            // Lowest cost; ties keep the earlier candidate (identity first).
+            candidates.iter().fold(candidates[0], |best, c| if c.0 < best.0 { *c } else { best }).1
+        }
+    };
+
+    let mut lm = Lm::new(pose0, &s.lm);
+    for k in 0..s.alternations {
+        fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
+        fit.train(s.fit.refine_steps, s.fit.refine_lr);
+        lm.lambda = s.lm.initial_lambda;
+        for _ in 0..s.lm_steps_per_alternation {
+            let outcome = lm.step(fit.mlp(), &src_unit, kernel);
+            if lm.is_converged(&outcome) {
+                break;
+            }
+        }
+        progress(Stage::Alternation(k + 1, s.alternations));
+    }
+    progress(Stage::Final);
+    let mut stop = StopReason::MaxIterations;
+    lm.lambda = s.lm.initial_lambda;
+    for _ in 0..s.final_lm_steps {
+        let outcome = lm.step(fit.mlp(), &src_unit, kernel);
+        if lm.is_converged(&outcome) {
+            stop = if outcome == StepOutcome::NoDecrease { StopReason::NoDecrease } else { StopReason::SmallStep };
+            break;
+        }
+    }
+
+    // Quality measures in the user's frame.
+    let pose_unit = lm.pose;
+    let moved = to_f32(&src_unit, &pose_unit);
+    let (phi, grads) = fit.mlp().eval(&moved, true);
+    let mut information = Matrix6::zeros();
+    let mut cost = 0.0;
+    for ((x, g), r) in moved.iter().zip(&grads).zip(&phi) {
+        let xu = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) * norm.scale + norm.centre;
+        let n = Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+        let c = xu.cross(&n);
+        let j = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+        information += j * j.transpose();
+        cost += (*r as f64 * norm.scale).powi(2);
+    }
+    let tree = fit.tree();
+    let d2: Vec<f32> = moved.par_iter().map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance).collect();
+    let thr = (s.inlier_distance * s.inlier_distance) as f32;
+    let inliers: Vec<f64> = d2.iter().filter(|&&d| d <= thr).map(|&d| d as f64).collect();
+    let fitness = inliers.len() as f64 / moved.len() as f64;
+    let inlier_rmse = if inliers.is_empty() { 0.0 } else { (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt() * norm.scale };
+
+    Ok(Registration {
+        t_target_source: norm.pose_from_unit(&pose_unit),
+        converged: stop != StopReason::MaxIterations,
+        stop_reason: stop,
+        iterations: lm.iterations,
+        cost: cost / moved.len() as f64,
+        fitness,
+        inlier_rmse,
+        inlier_distance: s.inlier_distance * norm.scale,
+        information,
+        time: start.elapsed(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cube_group_has_24_distinct_proper_rotations() {
+        let rs = cube_rotations();
+        assert_eq!(rs.len(), 24);
+        assert_eq!(rs[0], Rotation3::identity());
+        for (i, a) in rs.iter().enumerate() {
+            assert!((a.matrix().determinant() - 1.0).abs() < 1e-12);
+            for b in &rs[i + 1..] {
+                assert!(crate::se3::rotation_angle(a, b) > 1.0);
+            }
+        }
+    }
+}
