@@ -48,7 +48,13 @@ pub struct Common {
 
 impl Common {
     pub fn settings(&self) -> RegisterSettings {
-        let mut s = RegisterSettings { seed: self.seed, threads: self.threads, robust_scale: self.robust_scale, multistart: !self.no_multistart, ..Default::default() };
+        let mut s = RegisterSettings {
+            seed: self.seed,
+            threads: self.threads,
+            robust_scale: self.robust_scale,
+            multistart: !self.no_multistart,
+            ..Default::default()
+        };
         if let Some(a) = self.alternations {
             s.alternations = a;
         }

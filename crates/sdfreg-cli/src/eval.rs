@@ -51,7 +51,11 @@ fn median(v: &mut [f64]) -> f64 {
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
-    let protocols: Vec<Protocol> = if a.protocol == "all" { Protocol::ALL.to_vec() } else { vec![a.protocol.parse::<Protocol>().map_err(anyhow::Error::msg)?] };
+    let protocols: Vec<Protocol> = if a.protocol == "all" {
+        Protocol::ALL.to_vec()
+    } else {
+        vec![a.protocol.parse::<Protocol>().map_err(anyhow::Error::msg)?]
+    };
     if let Some(j) = &a.json {
         if j.exists() && !a.force {
             bail!("{}: exists; pass --force to overwrite", j.display());
@@ -65,11 +69,22 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     let shapes: Vec<(String, Vec<nalgebra::Point3<f64>>)> = paths
         .iter()
-        .map(|p| Ok((p.strip_prefix(&a.shapes).unwrap_or(p).display().to_string(), read_point_cloud(p)?)))
+        .map(|p| {
+            Ok((
+                p.strip_prefix(&a.shapes).unwrap_or(p).display().to_string(),
+                read_point_cloud(p)?,
+            ))
+        })
         .collect::<Result<_>>()?;
     let settings = a.common.settings();
     let mut all = Vec::new();
-    println!("sdfreg eval: {} shapes from {}, {} pairs per protocol, seed {}", shapes.len(), a.shapes.display(), a.pairs, a.common.seed);
+    println!(
+        "sdfreg eval: {} shapes from {}, {} pairs per protocol, seed {}",
+        shapes.len(),
+        a.shapes.display(),
+        a.pairs,
+        a.common.seed
+    );
     println!("| protocol | pairs | rot mean (°) | rot RMSE | rot median | t mean | t RMSE | t median | <5°/0.05 | <1°/0.01 | median time (s) |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (pi, protocol) in protocols.iter().enumerate() {
@@ -78,9 +93,15 @@ pub fn run(a: EvalArgs) -> Result<()> {
         let mut results = Vec::new();
         for i in 0..a.pairs {
             let (name, shape) = &shapes[i % shapes.len()];
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed.wrapping_mul(1_000_003).wrapping_add((pi * 100_000 + i) as u64));
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+                a.common
+                    .seed
+                    .wrapping_mul(1_000_003)
+                    .wrapping_add((pi * 100_000 + i) as u64),
+            );
             let pair = make_pair(shape, *protocol, &mut rng);
-            let r = sdfreg_core::register(&pair.source, &pair.target, None, &settings).with_context(|| format!("pair {i} ({name})"))?;
+            let r = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
+                .with_context(|| format!("pair {i} ({name})"))?;
             let (re, te) = pose_errors(&r.t_target_source, &pair.t_target_source);
             results.push(PairResult {
                 protocol: protocol.name(),
@@ -104,7 +125,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
         let mut time: Vec<f64> = results.iter().map(|r| r.time_s).collect();
         let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
         let rmse = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
-        let under = |r: f64, t: f64| results.iter().filter(|x| x.rotation_error_deg < r && x.translation_error < t).count() as f64 / n;
+        let under = |r: f64, t: f64| {
+            results
+                .iter()
+                .filter(|x| x.rotation_error_deg < r && x.translation_error < t)
+                .count() as f64
+                / n
+        };
         println!(
             "| {} | {} | {:.3} | {:.3} | {:.3} | {:.4} | {:.4} | {:.4} | {:.2} | {:.2} | {:.3} |",
             protocol.name(),
@@ -120,13 +147,17 @@ pub fn run(a: EvalArgs) -> Result<()> {
             median(&mut time)
         );
         for r in results.iter().filter(|r| r.rotation_error_deg > 5.0) {
-            println!("  failure: pair {} ({}) rotation error {:.1}°, translation error {:.3}", r.index, r.shape, r.rotation_error_deg, r.translation_error);
+            println!(
+                "  failure: pair {} ({}) rotation error {:.1}°, translation error {:.3}",
+                r.index, r.shape, r.rotation_error_deg, r.translation_error
+            );
         }
         all.extend(results);
     }
     if let Some(path) = &a.json {
         let json = serde_json::json!({ "shapes": a.shapes, "seed": a.common.seed, "settings": settings, "pairs": all });
-        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n").with_context(|| format!("{}", path.display()))?;
+        std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| format!("{}", path.display()))?;
     }
     Ok(())
 }

@@ -11,7 +11,9 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 use rand::SeedableRng;
 use sdfreg_core::io::{read_point_cloud, write_point_cloud};
 use sdfreg_core::protocol::pose_errors;
@@ -41,13 +43,23 @@ pub fn progress_bar(len: u64) -> ProgressBar {
         return ProgressBar::hidden();
     }
     let bar = ProgressBar::new(len);
-    bar.set_style(ProgressStyle::with_template("{spinner} {msg:24} [{bar:30}] {pos}/{len} {elapsed}").unwrap().progress_chars("=> "));
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {msg:24} [{bar:30}] {pos}/{len} {elapsed}")
+            .unwrap()
+            .progress_chars("=> "),
+    );
     bar
 }
 
 /// Registers with a progress bar over the pre-fit and the alternations.
-pub fn register_with_bar(source: &[Point3<f64>], target: &[Point3<f64>], init: Option<&Isometry3<f64>>, settings: &RegisterSettings) -> Result<Registration> {
-    let total = (settings.fit.prefit_steps + settings.alternations * settings.fit.refine_steps) as u64;
+pub fn register_with_bar(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<Registration> {
+    let total =
+        (settings.fit.prefit_steps + settings.alternations * settings.fit.refine_steps) as u64;
     let bar = progress_bar(total);
     let prefit = settings.fit.prefit_steps;
     let refine = settings.fit.refine_steps;
@@ -71,7 +83,10 @@ pub fn register_with_bar(source: &[Point3<f64>], target: &[Point3<f64>], init: O
 fn refuse_overwrite(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
     for input in inputs {
         if same_file(out, input) {
-            bail!("{}: refusing to write the output over an input", out.display());
+            bail!(
+                "{}: refusing to write the output over an input",
+                out.display()
+            );
         }
     }
     if out.exists() && !force {
@@ -92,23 +107,59 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
     let values: Vec<f64> = text
         .split(|c: char| c.is_whitespace() || c == ',' || c == '[' || c == ']')
         .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<f64>().map_err(|_| anyhow::anyhow!("{}: {s:?} is not a number (expected 16 numbers, a 4×4 matrix)", path.display())))
+        .map(|s| {
+            s.parse::<f64>().map_err(|_| {
+                anyhow::anyhow!(
+                    "{}: {s:?} is not a number (expected 16 numbers, a 4×4 matrix)",
+                    path.display()
+                )
+            })
+        })
         .collect::<Result<_>>()?;
     if values.len() != 16 && values.len() != 12 {
-        bail!("{}: expected a 4×4 matrix (16 numbers), found {} numbers", path.display(), values.len());
+        bail!(
+            "{}: expected a 4×4 matrix (16 numbers), found {} numbers",
+            path.display(),
+            values.len()
+        );
     }
-    let m = Matrix4::from_fn(|r, c| if r < 3 || values.len() == 16 { values[r * 4 + c] } else if c == 3 { 1.0 } else { 0.0 });
+    let m = Matrix4::from_fn(|r, c| {
+        if r < 3 || values.len() == 16 {
+            values[r * 4 + c]
+        } else if c == 3 {
+            1.0
+        } else {
+            0.0
+        }
+    });
     let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into();
-    if !m.iter().all(|v| v.is_finite()) || (r.transpose() * r - Matrix3::identity()).amax() > 1e-3 || (r.determinant() - 1.0).abs() > 1e-3 {
-        bail!("{}: the matrix is not a rigid transform (its 3×3 block must be a rotation)", path.display());
+    if !m.iter().all(|v| v.is_finite())
+        || (r.transpose() * r - Matrix3::identity()).amax() > 1e-3
+        || (r.determinant() - 1.0).abs() > 1e-3
+    {
+        bail!(
+            "{}: the matrix is not a rigid transform (its 3×3 block must be a rotation)",
+            path.display()
+        );
     }
     let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-    Ok(Isometry3::from_parts(Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]), rot))
+    Ok(Isometry3::from_parts(
+        Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+        rot,
+    ))
 }
 
 /// The 4×4 as four lines of four numbers.
 pub fn matrix_text(m: &Matrix4<f64>) -> String {
-    (0..4).map(|r| (0..4).map(|c| format!("{:.9}", m[(r, c)])).collect::<Vec<_>>().join(" ") + "\n").collect()
+    (0..4)
+        .map(|r| {
+            (0..4)
+                .map(|c| format!("{:.9}", m[(r, c)]))
+                .collect::<Vec<_>>()
+                .join(" ")
+                + "\n"
+        })
+        .collect()
 }
 
 fn cmd_register(a: RegisterArgs) -> Result<()> {
@@ -123,7 +174,11 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     let r = register_with_bar(&source, &target, init.as_ref(), &settings)?;
     let m = r.matrix();
     match &a.output {
-        Some(path) if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) => {
+        Some(path)
+            if path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("json")) =>
+        {
             let json = serde_json::json!({
                 "transformation": (0..4).map(|i| (0..4).map(|j| m[(i, j)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
                 "converged": r.converged,
@@ -136,9 +191,12 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 "information": (0..6).map(|i| (0..6).map(|j| r.information[(i, j)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
                 "time_ms": r.time.as_secs_f64() * 1e3,
             });
-            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n").with_context(|| format!("{}", path.display()))?;
+            std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
+                .with_context(|| format!("{}", path.display()))?;
         }
-        Some(path) => std::fs::write(path, matrix_text(&m)).with_context(|| format!("{}", path.display()))?,
+        Some(path) => {
+            std::fs::write(path, matrix_text(&m)).with_context(|| format!("{}", path.display()))?
+        }
         None => print!("{}", matrix_text(&m)),
     }
     if let Some(path) = &a.aligned {
@@ -147,7 +205,11 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     }
     eprintln!(
         "sdfreg: {} after {} LM iterations ({:?}), fitness {:.3}, inlier RMSE {:.3e}, {:.0} ms",
-        if r.converged { "converged" } else { "not converged" },
+        if r.converged {
+            "converged"
+        } else {
+            "not converged"
+        },
         r.iterations,
         r.stop_reason,
         r.fitness,
@@ -161,15 +223,30 @@ fn cmd_demo(a: DemoArgs) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed);
     let target = sdfreg_core::shapes::blob(a.points.max(10), &mut rng);
     let axis = nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -1.5));
-    let truth_motion = Isometry3::from_parts(Translation3::new(0.3, -0.2, 0.25), UnitQuaternion::from_axis_angle(&axis, a.angle.to_radians()));
+    let truth_motion = Isometry3::from_parts(
+        Translation3::new(0.3, -0.2, 0.25),
+        UnitQuaternion::from_axis_angle(&axis, a.angle.to_radians()),
+    );
     let source: Vec<Point3<f64>> = target.iter().map(|p| truth_motion * p).collect();
     let truth = truth_motion.inverse();
-    println!("sdfreg demo: a {}-point procedural blob against a copy moved by {}° and {:.3} units", target.len(), a.angle, truth_motion.translation.vector.norm());
+    println!(
+        "sdfreg demo: a {}-point procedural blob against a copy moved by {}° and {:.3} units",
+        target.len(),
+        a.angle,
+        truth_motion.translation.vector.norm()
+    );
     let r = register_with_bar(&source, &target, None, &a.common.settings())?;
     let (re, te) = pose_errors(&r.t_target_source, &truth);
     print!("estimated t_target_source:\n{}", matrix_text(&r.matrix()));
     println!("rotation error {re:.3}°, translation error {te:.5} (shape ≈ 1.1 units across)");
-    println!("converged: {} ({:?}), LM iterations {}, fitness {:.3}, time {:.0} ms", r.converged, r.stop_reason, r.iterations, r.fitness, r.time.as_secs_f64() * 1e3);
+    println!(
+        "converged: {} ({:?}), LM iterations {}, fitness {:.3}, time {:.0} ms",
+        r.converged,
+        r.stop_reason,
+        r.iterations,
+        r.fitness,
+        r.time.as_secs_f64() * 1e3
+    );
     if re > 5.0 {
         bail!("demo registration failed: rotation error {re:.2}° exceeds 5°");
     }

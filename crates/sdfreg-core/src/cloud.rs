@@ -27,12 +27,23 @@ pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
 
 /// Checks that every coordinate is finite and that there are at least `min` points.
 pub fn validate(points: &[Point3<f64>], role: Role, min: usize) -> Result<(), Error> {
-    if let Some(index) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
+    if let Some(index) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
         let p = points[index];
-        return Err(Error::NonFinite { role, index, point: [p.x, p.y, p.z] });
+        return Err(Error::NonFinite {
+            role,
+            index,
+            point: [p.x, p.y, p.z],
+        });
     }
     if points.len() < min {
-        return Err(Error::TooFewPoints { role, found: points.len(), min });
+        return Err(Error::TooFewPoints {
+            role,
+            found: points.len(),
+            min,
+        });
     }
     Ok(())
 }
@@ -49,12 +60,19 @@ pub struct Normalization {
 impl Normalization {
     /// The normalisation defined by the target cloud.
     pub fn from_target(target: &[Point3<f64>]) -> Result<Self, Error> {
-        let (lo, hi) = bounding_box(target).ok_or(Error::TooFewPoints { role: Role::Target, found: 0, min: 1 })?;
+        let (lo, hi) = bounding_box(target).ok_or(Error::TooFewPoints {
+            role: Role::Target,
+            found: 0,
+            min: 1,
+        })?;
         let scale = (hi - lo).max();
         let centre = (lo.coords + hi.coords) * 0.5;
         // Relative to the coordinates' magnitude: a cloud 1e-9 wide at 1e6 is a single point.
         if !(scale > 1e-9 * (1.0 + centre.amax())) {
-            return Err(Error::NoExtent { role: Role::Target, extent: scale });
+            return Err(Error::NoExtent {
+                role: Role::Target,
+                extent: scale,
+            });
         }
         Ok(Self { centre, scale })
     }
@@ -92,10 +110,16 @@ mod tests {
 
     #[test]
     fn pose_round_trip_and_meaning() {
-        let target = vec![Point3::new(1e6, 2e6, 3.0), Point3::new(1e6 + 4.0, 2e6 + 1.0, 5.0)];
+        let target = vec![
+            Point3::new(1e6, 2e6, 3.0),
+            Point3::new(1e6 + 4.0, 2e6 + 1.0, 5.0),
+        ];
         let n = Normalization::from_target(&target).unwrap();
         assert_eq!(n.scale, 4.0);
-        let t = Isometry3::from_parts(Translation3::new(0.3, -2.0, 1.0), UnitQuaternion::from_scaled_axis(Vector3::new(0.2, 0.5, -0.1)));
+        let t = Isometry3::from_parts(
+            Translation3::new(0.3, -2.0, 1.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.2, 0.5, -0.1)),
+        );
         let u = n.pose_to_unit(&t);
         let back = n.pose_from_unit(&u);
         assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
@@ -109,9 +133,22 @@ mod tests {
     #[test]
     fn rejects_single_point_and_non_finite() {
         let same = vec![Point3::new(1.0, 1.0, 1.0); 10];
-        assert!(matches!(Normalization::from_target(&same), Err(Error::NoExtent { .. })));
+        assert!(matches!(
+            Normalization::from_target(&same),
+            Err(Error::NoExtent { .. })
+        ));
         let bad = vec![Point3::new(0.0, 0.0, 0.0), Point3::new(f64::NAN, 0.0, 0.0)];
-        assert!(matches!(validate(&bad, Role::Source, 1), Err(Error::NonFinite { index: 1, .. })));
-        assert!(matches!(validate(&same, Role::Source, 20), Err(Error::TooFewPoints { found: 10, min: 20, .. })));
+        assert!(matches!(
+            validate(&bad, Role::Source, 1),
+            Err(Error::NonFinite { index: 1, .. })
+        ));
+        assert!(matches!(
+            validate(&same, Role::Source, 20),
+            Err(Error::TooFewPoints {
+                found: 10,
+                min: 20,
+                ..
+            })
+        ));
     }
 }

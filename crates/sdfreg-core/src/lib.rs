@@ -35,5 +35,7 @@ pub mod shapes;
 pub use error::{Error, IoError, Role};
 pub use lm::{Kernel, LmSettings};
 pub use mlp::MlpSettings;
-pub use register::{register, register_with_progress, RegisterSettings, Registration, Stage, StopReason};
+pub use register::{
+    register, register_with_progress, RegisterSettings, Registration, Stage, StopReason,
+};
 pub use sdf_fit::FitSettings;

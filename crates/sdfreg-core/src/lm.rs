@@ -94,7 +94,12 @@ fn transform_chunk(pose: &Isometry3<f64>, chunk: &[Point3<f64>]) -> Vec<[f32; 3]
 }
 
 /// Normal equations of the points `source` (unit frame) moved by `pose`.
-pub fn linearize(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kernel: Kernel) -> Linearization {
+pub fn linearize(
+    mlp: &Mlp,
+    source: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    kernel: Kernel,
+) -> Linearization {
     let parts: Vec<Linearization> = source
         .par_chunks(BLOCK)
         .map_init(
@@ -121,7 +126,18 @@ pub fn linearize(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kerne
             },
         )
         .collect();
-    parts.into_iter().fold(Linearization { h: Matrix6::zeros(), g: Vector6::zeros(), cost: 0.0 }, |a, b| Linearization { h: a.h + b.h, g: a.g + b.g, cost: a.cost + b.cost })
+    parts.into_iter().fold(
+        Linearization {
+            h: Matrix6::zeros(),
+            g: Vector6::zeros(),
+            cost: 0.0,
+        },
+        |a, b| Linearization {
+            h: a.h + b.h,
+            g: a.g + b.g,
+            cost: a.cost + b.cost,
+        },
+    )
 }
 
 /// `Σ ρ(Φ(T pᵢ))` over `source` (unit frame), summed in fixed chunk order.
@@ -133,7 +149,9 @@ pub fn cost(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kernel: Ke
             |ws, chunk| {
                 let xs = transform_chunk(pose, chunk);
                 mlp.forward_block(&xs, false, ws);
-                (0..xs.len()).map(|j| kernel.rho_weight(ws.value(j) as f64).0).sum::<f64>()
+                (0..xs.len())
+                    .map(|j| kernel.rho_weight(ws.value(j) as f64).0)
+                    .sum::<f64>()
             },
         )
         .collect();
@@ -171,13 +189,25 @@ pub struct Lm {
 impl Lm {
     /// A solver starting at `pose`.
     pub fn new(pose: Isometry3<f64>, settings: &LmSettings) -> Self {
-        Self { pose, lambda: settings.initial_lambda, cost: f64::INFINITY, iterations: 0, settings: settings.clone() }
+        Self {
+            pose,
+            lambda: settings.initial_lambda,
+            cost: f64::INFINITY,
+            iterations: 0,
+            settings: settings.clone(),
+        }
     }
 
     /// Whether a step of this size counts as converged.
     pub fn is_converged(&self, outcome: &StepOutcome) -> bool {
         match outcome {
-            StepOutcome::Accepted { rotation, translation } => *rotation < self.settings.rotation_tolerance && *translation < self.settings.translation_tolerance,
+            StepOutcome::Accepted {
+                rotation,
+                translation,
+            } => {
+                *rotation < self.settings.rotation_tolerance
+                    && *translation < self.settings.translation_tolerance
+            }
             StepOutcome::NoDecrease => true,
         }
     }
@@ -222,15 +252,26 @@ mod tests {
     #[test]
     fn jacobian_matches_finite_differences_of_the_residual() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
-        let mlp = Mlp::new(&MlpSettings { beta: 10.0, ..Default::default() }, &mut rng);
+        let mlp = Mlp::new(
+            &MlpSettings {
+                beta: 10.0,
+                ..Default::default()
+            },
+            &mut rng,
+        );
         let p = [Point3::new(0.3, -0.2, 0.1)];
         let pose = exp_se3(&Vector6::new(0.2, -0.1, 0.3, 0.05, 0.1, -0.02));
         let lin = linearize(&mlp, &p, &pose, Kernel::L2);
         // g = r J ⇒ J = g / r (single point).
-        let r = mlp.eval(&[{
-            let x = pose * p[0];
-            [x.x as f32, x.y as f32, x.z as f32]
-        }], false).0[0] as f64;
+        let r = mlp
+            .eval(
+                &[{
+                    let x = pose * p[0];
+                    [x.x as f32, x.y as f32, x.z as f32]
+                }],
+                false,
+            )
+            .0[0] as f64;
         let jac = lin.g / r;
         let h = 1e-3;
         for k in 0..6 {
@@ -241,7 +282,11 @@ mod tests {
                 mlp.eval(&[[x.x as f32, x.y as f32, x.z as f32]], false).0[0] as f64
             };
             let fd = (f(exp_se3(&d) * pose) - f(exp_se3(&-d) * pose)) / (2.0 * h);
-            assert!((fd - jac[k]).abs() < 2e-3 * (1.0 + fd.abs()), "column {k}: fd {fd} vs {}", jac[k]);
+            assert!(
+                (fd - jac[k]).abs() < 2e-3 * (1.0 + fd.abs()),
+                "column {k}: fd {fd} vs {}",
+                jac[k]
+            );
         }
         assert!((lin.h - jac * jac.transpose()).norm() < 1e-6 * (1.0 + lin.h.norm()));
     }

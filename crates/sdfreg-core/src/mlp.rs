@@ -36,7 +36,12 @@ pub struct MlpSettings {
 
 impl Default for MlpSettings {
     fn default() -> Self {
-        Self { width: 32, depth: 3, beta: 100.0, init_radius: 0.3 }
+        Self {
+            width: 32,
+            depth: 3,
+            beta: 100.0,
+            init_radius: 0.3,
+        }
     }
 }
 
@@ -80,6 +85,7 @@ pub struct Workspace {
     out: Vec<f32>,
     hbar: Vec<f32>,
     zbar: Vec<f32>,
+    sbar: Vec<f32>,
 }
 
 impl Workspace {
@@ -104,15 +110,106 @@ impl Workspace {
     }
 }
 
+/// `exp(x)` for `x ≤ 0` (f32, relative error < 2e-7), branchless so loops over it vectorise:
+/// `2ⁿ · e^r` with `n = round(x / ln 2)`, `|r| ≤ ln2 / 2`, and a degree-6 polynomial for `e^r`.
+#[inline(always)]
+fn exp_nonpositive(x: f32) -> f32 {
+    let x = x.max(-87.0);
+    // Round to nearest with the 1.5·2²³ trick (no SSE4.1 `round` needed).
+    const MAGIC: f32 = 12_582_912.0;
+    let n = (x * std::f32::consts::LOG2_E + MAGIC) - MAGIC;
+    // Cody–Waite: ln 2 split in a part exact in f32 and a correction.
+    let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
+    let p = 1.0
+        + r * (1.0
+            + r * (0.5
+                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    f32::from_bits(((n as i32 + 127) << 23) as u32) * p
+}
+
+/// `ln(1 + u)` for `u ∈ [0, 1]` (f32, relative error < 3e-7), branchless: with
+/// `s = u / (2 + u) ≤ 1/3`, `ln(1+u) = 2 atanh(s) = 2 (s + s³/3 + s⁵/5 + …)`.
+#[inline(always)]
+fn ln_1p_unit(u: f32) -> f32 {
+    let s = u / (2.0 + u);
+    let s2 = s * s;
+    2.0 * s
+        * (1.0
+            + s2 * (1.0 / 3.0
+                + s2 * (1.0 / 5.0
+                    + s2 * (1.0 / 7.0 + s2 * (1.0 / 9.0 + s2 * (1.0 / 11.0 + s2 * (1.0 / 13.0)))))))
+}
+
 /// Numerically stable softplus and σ(βz): returns `(sp(z), σ(βz))`.
 #[inline(always)]
 fn softplus_sigmoid(z: f32, beta: f32) -> (f32, f32) {
     let y = beta * z;
-    let e = (-y.abs()).exp();
-    let sp = (y.max(0.0) + e.ln_1p()) / beta;
+    let e = exp_nonpositive(-y.abs());
+    let sp = (y.max(0.0) + ln_1p_unit(e)) / beta;
     let inv = 1.0 / (1.0 + e);
     let s = if y >= 0.0 { inv } else { e * inv };
     (sp, s)
+}
+
+/// Elementwise kernels of the forward and reverse passes, over contiguous slices so they
+/// vectorise; compiled for several instruction sets and chosen at run time.
+mod kernels {
+    use super::softplus_sigmoid;
+    use multiversion::multiversion;
+
+    /// `z += bias` per column; `h = sp(z)`, `s = σ(βz)`. `z`, `h`, `s` are `w × b` column-major.
+    #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
+    pub fn activate(z: &mut [f32], h: &mut [f32], s: &mut [f32], bias: &[f32], beta: f32) {
+        let w = bias.len();
+        for ((zc, hc), sc) in z
+            .chunks_exact_mut(w)
+            .zip(h.chunks_exact_mut(w))
+            .zip(s.chunks_exact_mut(w))
+        {
+            for i in 0..w {
+                let zi = zc[i] + bias[i];
+                zc[i] = zi;
+                let (sp, sg) = softplus_sigmoid(zi, beta);
+                hc[i] = sp;
+                sc[i] = sg;
+            }
+        }
+    }
+
+    /// `out = a ⊙ b`.
+    #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
+    pub fn mul(out: &mut [f32], a: &[f32], b: &[f32]) {
+        for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+            *o = x * y;
+        }
+    }
+
+    /// `acc += a ⊙ b`.
+    #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
+    pub fn mul_add(acc: &mut [f32], a: &[f32], b: &[f32]) {
+        for ((o, x), y) in acc.iter_mut().zip(a).zip(b) {
+            *o += x * y;
+        }
+    }
+
+    /// `zbar = hbar ⊙ s + β s (1 − s) ⊙ sbar` (the primal pre-activation adjoint).
+    #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
+    pub fn primal_adjoint(zbar: &mut [f32], hbar: &[f32], s: &[f32], sbar: &[f32], beta: f32) {
+        for (((zb, &hb), &sv), &sb) in zbar.iter_mut().zip(hbar).zip(s).zip(sbar) {
+            *zb = hb * sv + sb * beta * sv * (1.0 - sv);
+        }
+    }
+
+    /// `acc[i] += Σ_j m[i, j]` for a `w × n` column-major `m` with `w = acc.len()`.
+    #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
+    pub fn add_columns(acc: &mut [f32], m: &[f32]) {
+        let w = acc.len();
+        for col in m.chunks_exact(w) {
+            for (a, &v) in acc.iter_mut().zip(col) {
+                *a += v;
+            }
+        }
+    }
 }
 
 fn mat(data: &[f32], rows: usize, cols: usize) -> MatRef<'_, f32> {
@@ -123,9 +220,11 @@ fn mat_mut(data: &mut [f32], rows: usize, cols: usize) -> MatMut<'_, f32> {
     MatMut::from_column_major_slice_mut(data, rows, cols)
 }
 
+/// Sizes a scratch buffer; its contents are overwritten by the caller, so no zero-fill.
 fn resize(v: &mut Vec<f32>, n: usize) {
-    v.clear();
-    v.resize(n, 0.0);
+    if v.len() != n {
+        v.resize(n, 0.0);
+    }
 }
 
 impl Mlp {
@@ -140,7 +239,12 @@ impl Mlp {
         let mut n = 0;
         for pair in dims.windows(2) {
             let (n_in, n_out) = (pair[0], pair[1]);
-            layers.push(Layer { n_in, n_out, w: n, b: n + n_in * n_out });
+            layers.push(Layer {
+                n_in,
+                n_out,
+                w: n,
+                b: n + n_in * n_out,
+            });
             n += n_in * n_out + n_out;
         }
         let mut params = vec![0.0f32; n];
@@ -158,7 +262,12 @@ impl Mlp {
                 params[l.b] = -settings.init_radius;
             }
         }
-        Self { layers, params, beta: settings.beta, width: w }
+        Self {
+            layers,
+            params,
+            beta: settings.beta,
+            width: w,
+        }
     }
 
     /// Number of parameters.
@@ -213,7 +322,14 @@ impl Mlp {
             resize(z, w * nc);
             if li == 0 {
                 // Primal: W₀ x. Tangent k of the input is e_k, so its pre-activation is column k of W₀.
-                matmul(mat_mut(&mut z[..w * b], w, b), Accum::Replace, self.weights(&l), mat(&ws.x, 3, b), 1.0, Par::Seq);
+                matmul(
+                    mat_mut(&mut z[..w * b], w, b),
+                    Accum::Replace,
+                    self.weights(&l),
+                    mat(&ws.x, 3, b),
+                    1.0,
+                    Par::Seq,
+                );
                 let w0 = &self.params[l.w..l.b];
                 for k in 0..t {
                     let col = &w0[k * w..(k + 1) * w];
@@ -224,7 +340,14 @@ impl Mlp {
                 }
             } else {
                 let hp = &ws.h[li - 1];
-                matmul(mat_mut(z, w, nc), Accum::Replace, self.weights(&l), mat(hp, w, nc), 1.0, Par::Seq);
+                matmul(
+                    mat_mut(z, w, nc),
+                    Accum::Replace,
+                    self.weights(&l),
+                    mat(hp, w, nc),
+                    1.0,
+                    Par::Seq,
+                );
             }
             let _ = rest;
             let bias = &self.params[l.b..l.b + w];
@@ -232,28 +355,22 @@ impl Mlp {
             let s = &mut ws.s[li];
             resize(h, w * nc);
             resize(s, w * b);
-            for j in 0..b {
-                let zc = &mut z[j * w..(j + 1) * w];
-                let hc = &mut h[j * w..(j + 1) * w];
-                let sc = &mut s[j * w..(j + 1) * w];
-                for i in 0..w {
-                    let zi = zc[i] + bias[i];
-                    zc[i] = zi;
-                    let (sp, sg) = softplus_sigmoid(zi, beta);
-                    hc[i] = sp;
-                    sc[i] = sg;
-                }
-            }
+            kernels::activate(&mut z[..w * b], &mut h[..w * b], s, bias, beta);
             for k in 0..t {
                 let o = (1 + k) * b * w;
-                for (hv, (zv, sv)) in h[o..o + b * w].iter_mut().zip(z[o..o + b * w].iter().zip(s.iter())) {
-                    *hv = sv * zv;
-                }
+                kernels::mul(&mut h[o..o + b * w], &z[o..o + b * w], s);
             }
         }
         let l = self.layers[hidden];
         resize(&mut ws.out, nc);
-        matmul(mat_mut(&mut ws.out, 1, nc), Accum::Replace, self.weights(&l), mat(&ws.h[hidden - 1], w, nc), 1.0, Par::Seq);
+        matmul(
+            mat_mut(&mut ws.out, 1, nc),
+            Accum::Replace,
+            self.weights(&l),
+            mat(&ws.h[hidden - 1], w, nc),
+            1.0,
+            Par::Seq,
+        );
         let b_out = self.params[l.b];
         for v in &mut ws.out[..b] {
             *v += b_out;
@@ -263,7 +380,13 @@ impl Mlp {
     /// Reverse pass after [`Mlp::forward_block`]: given `dphi[j] = ∂L/∂Φ(x_j)` and (when the
     /// forward pass carried tangents) `dgrad[j] = ∂L/∂∇Φ(x_j)`, adds `∂L/∂θ` to `grad`
     /// (same layout as [`Mlp::params`]).
-    pub fn backward_block(&self, ws: &mut Workspace, dphi: &[f32], dgrad: &[[f32; 3]], grad: &mut [f32]) {
+    pub fn backward_block(
+        &self,
+        ws: &mut Workspace,
+        dphi: &[f32],
+        dgrad: &[[f32; 3]],
+        grad: &mut [f32],
+    ) {
         let (b, t, w) = (ws.b, ws.t, self.width);
         let nc = (1 + t) * b;
         let hidden = self.layers.len() - 1;
@@ -280,7 +403,14 @@ impl Mlp {
         let l = self.layers[hidden];
         {
             let (gw, gb) = grad[l.w..].split_at_mut(l.b - l.w);
-            matmul(mat_mut(gw, 1, w), Accum::Add, mat(&obar, 1, nc), mat(&ws.h[hidden - 1], w, nc).transpose(), 1.0, Par::Seq);
+            matmul(
+                mat_mut(gw, 1, w),
+                Accum::Add,
+                mat(&obar, 1, nc),
+                mat(&ws.h[hidden - 1], w, nc).transpose(),
+                1.0,
+                Par::Seq,
+            );
             gb[0] += obar[..b].iter().sum::<f32>();
         }
         // hbar = w_outᵀ obar (an outer product).
@@ -296,39 +426,54 @@ impl Mlp {
             let l = self.layers[li];
             let (s, z) = (&ws.s[li], &ws.z[li]);
             // Tangent adjoints: dh_k = s ⊙ dz_k ⇒ z̄_k = h̄_k ⊙ s, and s̄ = Σ_k h̄_k ⊙ dz_k.
+            // h = sp(z) ⇒ z̄ += h̄ σ; σ = σ(βz) ⇒ z̄ += s̄ β σ (1 − σ).
             let (zb_p, zb_t) = ws.zbar.split_at_mut(w * b);
             let (hb_p, hb_t) = ws.hbar.split_at(w * b);
-            for (i, (zp, (&hp, &sv))) in zb_p.iter_mut().zip(hb_p.iter().zip(s.iter())).enumerate() {
-                let mut sbar = 0.0f32;
-                for k in 0..t {
-                    let o = k * b * w + i;
-                    sbar += hb_t[o] * z[w * b + o];
-                    zb_t[o] = hb_t[o] * sv;
-                }
-                // h = sp(z) ⇒ z̄ += h̄ σ; σ = σ(βz) ⇒ z̄ += s̄ β σ (1 − σ).
-                *zp = hp * sv + sbar * beta * sv * (1.0 - sv);
+            resize(&mut ws.sbar, w * b);
+            ws.sbar.fill(0.0);
+            for k in 0..t {
+                let o = k * b * w;
+                kernels::mul_add(
+                    &mut ws.sbar,
+                    &hb_t[o..o + b * w],
+                    &z[w * b + o..w * b + o + b * w],
+                );
+                kernels::mul(&mut zb_t[o..o + b * w], &hb_t[o..o + b * w], s);
             }
+            kernels::primal_adjoint(zb_p, hb_p, s, &ws.sbar, beta);
             let (gw, gb) = grad[l.w..].split_at_mut(l.b - l.w);
-            for j in 0..b {
-                for (g, &zb) in gb[..w].iter_mut().zip(&ws.zbar[j * w..(j + 1) * w]) {
-                    *g += zb;
-                }
-            }
+            kernels::add_columns(&mut gb[..w], zb_p);
             if li == 0 {
                 // Input tangents are constants e_k: W₀ gets z̄ xᵀ plus Σ_j z̄_k in column k.
-                matmul(mat_mut(gw, w, 3), Accum::Add, mat(&ws.zbar[..w * b], w, b), mat(&ws.x, 3, b).transpose(), 1.0, Par::Seq);
+                matmul(
+                    mat_mut(gw, w, 3),
+                    Accum::Add,
+                    mat(&ws.zbar[..w * b], w, b),
+                    mat(&ws.x, 3, b).transpose(),
+                    1.0,
+                    Par::Seq,
+                );
                 for k in 0..t {
-                    let col = &mut gw[k * w..(k + 1) * w];
                     let o = (1 + k) * b * w;
-                    for j in 0..b {
-                        for (g, &zb) in col.iter_mut().zip(&ws.zbar[o + j * w..o + (j + 1) * w]) {
-                            *g += zb;
-                        }
-                    }
+                    kernels::add_columns(&mut gw[k * w..(k + 1) * w], &ws.zbar[o..o + b * w]);
                 }
             } else {
-                matmul(mat_mut(gw, w, w), Accum::Add, mat(&ws.zbar, w, nc), mat(&ws.h[li - 1], w, nc).transpose(), 1.0, Par::Seq);
-                matmul(mat_mut(&mut ws.hbar, w, nc), Accum::Replace, self.weights(&l).transpose(), mat(&ws.zbar, w, nc), 1.0, Par::Seq);
+                matmul(
+                    mat_mut(gw, w, w),
+                    Accum::Add,
+                    mat(&ws.zbar, w, nc),
+                    mat(&ws.h[li - 1], w, nc).transpose(),
+                    1.0,
+                    Par::Seq,
+                );
+                matmul(
+                    mat_mut(&mut ws.hbar, w, nc),
+                    Accum::Replace,
+                    self.weights(&l).transpose(),
+                    mat(&ws.zbar, w, nc),
+                    1.0,
+                    Par::Seq,
+                );
             }
         }
     }
@@ -344,7 +489,11 @@ impl Mlp {
                 |ws, chunk| {
                     self.forward_block(chunk, gradients, ws);
                     let v = (0..chunk.len()).map(|j| ws.value(j)).collect();
-                    let g = if gradients { (0..chunk.len()).map(|j| ws.gradient(j)).collect() } else { Vec::new() };
+                    let g = if gradients {
+                        (0..chunk.len()).map(|j| ws.gradient(j)).collect()
+                    } else {
+                        Vec::new()
+                    };
                     (v, g)
                 },
             )
@@ -367,7 +516,15 @@ mod tests {
 
     fn small_net(beta: f32, seed: u64) -> Mlp {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut net = Mlp::new(&MlpSettings { width: 8, depth: 3, beta, init_radius: 0.3 }, &mut rng);
+        let mut net = Mlp::new(
+            &MlpSettings {
+                width: 8,
+                depth: 3,
+                beta,
+                init_radius: 0.3,
+            },
+            &mut rng,
+        );
         // Perturb all parameters so no term is trivially zero (e.g. biases at init).
         for p in net.params_mut() {
             *p += rng.random_range(-0.3..0.3);
@@ -377,7 +534,39 @@ mod tests {
 
     fn points(n: usize, seed: u64) -> Vec<[f32; 3]> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        (0..n).map(|_| [rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6), rng.random_range(-0.6..0.6)]).collect()
+        (0..n)
+            .map(|_| {
+                [
+                    rng.random_range(-0.6..0.6),
+                    rng.random_range(-0.6..0.6),
+                    rng.random_range(-0.6..0.6),
+                ]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn fast_exp_and_ln_1p_are_accurate() {
+        let mut worst = (0.0f64, 0.0f64);
+        for i in 0..=200_000 {
+            let x = -(i as f32) * 4.35e-4; // [−87, 0], below which f32 underflows
+            let e = (x as f64).exp();
+            worst.0 = worst.0.max(((exp_nonpositive(x) as f64) - e).abs() / e);
+            let u = i as f32 / 200_000.0;
+            let l = (u as f64).ln_1p();
+            worst.1 = worst
+                .1
+                .max(((ln_1p_unit(u) as f64) - l).abs() / l.max(1e-30));
+        }
+        assert!(
+            worst.0 < 5e-7 && worst.1 < 5e-7,
+            "relative errors exp {:.2e}, ln_1p {:.2e}",
+            worst.0,
+            worst.1
+        );
+        assert_eq!(exp_nonpositive(-1000.0), exp_nonpositive(-87.0));
+        let (sp, s) = softplus_sigmoid(0.0, 100.0);
+        assert!((sp - std::f32::consts::LN_2 / 100.0).abs() < 1e-9 && (s - 0.5).abs() < 1e-7);
     }
 
     #[test]
@@ -385,7 +574,10 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let net = Mlp::new(&MlpSettings::default(), &mut rng);
         assert_eq!(net.num_params(), 3 * 32 + 32 + 2 * (32 * 32 + 32) + 32 + 1);
-        let pts: Vec<[f32; 3]> = points(200, 4).into_iter().filter(|p| p.iter().map(|v| v * v).sum::<f32>() > 0.05).collect();
+        let pts: Vec<[f32; 3]> = points(200, 4)
+            .into_iter()
+            .filter(|p| p.iter().map(|v| v * v).sum::<f32>() > 0.05)
+            .collect();
         let (v, g) = net.eval(&pts, true);
         // Geometric init is only approximately a sphere; it must point outwards with |∇Φ| ≈ 1.
         let mut cos_sum = 0.0;
@@ -396,7 +588,12 @@ mod tests {
         }
         let mean_cos = cos_sum / pts.len() as f32;
         assert!(mean_cos > 0.8, "mean cos(∇Φ, x) = {mean_cos}");
-        let err: f32 = pts.iter().zip(&v).map(|(p, &vi)| (vi - ((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.3)).abs()).sum::<f32>() / pts.len() as f32;
+        let err: f32 = pts
+            .iter()
+            .zip(&v)
+            .map(|(p, &vi)| (vi - ((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 0.3)).abs())
+            .sum::<f32>()
+            / pts.len() as f32;
         assert!(err < 0.15, "mean |Φ − (|x| − r)| = {err}");
     }
 
@@ -458,11 +655,15 @@ mod tests {
             a.params_mut()[i] += h;
             let mut b = net.clone();
             b.params_mut()[i] -= h;
-            let fd = (test_loss(&a, &pts, tangents).0 - test_loss(&b, &pts, tangents).0) / (2.0 * h as f64);
+            let fd = (test_loss(&a, &pts, tangents).0 - test_loss(&b, &pts, tangents).0)
+                / (2.0 * h as f64);
             let rel = (fd - grad[i] as f64).abs() / (1.0 + fd.abs());
             worst = worst.max(rel);
         }
-        assert!(worst < 5e-3, "worst relative mismatch of ∂L/∂θ: {worst} (tangents: {tangents})");
+        assert!(
+            worst < 5e-3,
+            "worst relative mismatch of ∂L/∂θ: {worst} (tangents: {tangents})"
+        );
     }
 
     #[test]
@@ -480,7 +681,10 @@ mod tests {
         let net = small_net(100.0, 8);
         let pts = points(3 * BLOCK + 17, 9);
         let (v, g) = net.eval(&pts, true);
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let (v1, g1) = pool.install(|| net.eval(&pts, true));
         assert_eq!(v, v1);
         assert_eq!(g, g1);

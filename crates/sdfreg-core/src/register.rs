@@ -17,7 +17,10 @@
 use std::time::{Duration, Instant};
 
 use kiddo::SquaredEuclidean;
-use nalgebra::{Isometry3, Matrix3, Matrix4, Matrix6, Point3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Matrix6, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+    Vector6,
+};
 use rand::seq::index::sample;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -53,6 +56,15 @@ pub struct RegisterSettings {
     pub multistart: bool,
     /// LM steps per multi-start candidate. Default 5.
     pub multistart_lm_steps: usize,
+    /// Source points used by each multi-start candidate at most. Default 512.
+    pub multistart_points: usize,
+    /// Candidates kept after the first multi-start round, for further refinement. Default 4.
+    pub multistart_keep: usize,
+    /// LM steps per kept candidate in the second round. Default 15.
+    pub multistart_refine_steps: usize,
+    /// Candidates whose cost is within this fraction of the best are ties, and the one with the
+    /// smallest rotation wins (a least-motion prior for symmetric shapes). Default 0.1.
+    pub multistart_tie: f64,
     /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
     pub max_source_points: usize,
     /// Target points used by the fit at most; more are subsampled (seeded). Default 100000.
@@ -79,6 +91,10 @@ impl Default for RegisterSettings {
             final_lm_steps: 10,
             multistart: true,
             multistart_lm_steps: 5,
+            multistart_points: 512,
+            multistart_keep: 4,
+            multistart_refine_steps: 15,
+            multistart_tie: 0.1,
             max_source_points: 4096,
             max_target_points: 100_000,
             robust_scale: None,
@@ -91,7 +107,12 @@ impl Default for RegisterSettings {
 
 impl RegisterSettings {
     fn validate(&self) -> Result<(), Error> {
-        let bad = |name, reason: &str| Err(Error::InvalidSetting { name, reason: reason.into() });
+        let bad = |name, reason: &str| {
+            Err(Error::InvalidSetting {
+                name,
+                reason: reason.into(),
+            })
+        };
         if self.mlp.width == 0 || self.mlp.depth == 0 {
             return bad("mlp", "width and depth must be at least 1");
         }
@@ -180,7 +201,14 @@ impl Registration {
 /// The 24 rotations of the cube group: signed permutation matrices with determinant +1,
 /// the identity first.
 pub fn cube_rotations() -> Vec<Rotation3<f64>> {
-    let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     let mut out = Vec::with_capacity(24);
     for p in perms {
         for signs in 0..8 {
@@ -217,7 +245,12 @@ fn to_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
 
 /// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
 /// target) replaces the multi-start when given.
-pub fn register(source: &[Point3<f64>], target: &[Point3<f64>], init: Option<&Isometry3<f64>>, settings: &RegisterSettings) -> Result<Registration, Error> {
+pub fn register(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<Registration, Error> {
     register_with_progress(source, target, init, settings, &|_| {})
 }
 
@@ -237,7 +270,10 @@ pub fn register_with_progress(
             return Err(Error::InvalidInit);
         }
     }
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(settings.threads).build().map_err(|e| Error::ThreadPool(e.to_string()))?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads)
+        .build()
+        .map_err(|e| Error::ThreadPool(e.to_string()))?;
     pool.install(|| run(source, target, init, settings, progress))
 }
 
@@ -251,11 +287,20 @@ fn run(
     let start = Instant::now();
     let norm = Normalization::from_target(target)?;
     let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
-    let src_unit: Vec<Point3<f64>> = subsample(source, s.max_source_points, &mut rng).iter().map(|p| norm.to_unit_f64(p)).collect();
-    let tgt_unit: Vec<[f32; 3]> = subsample(target, s.max_target_points, &mut rng).iter().map(|p| norm.to_unit(p)).collect();
+    let src_unit: Vec<Point3<f64>> = subsample(source, s.max_source_points, &mut rng)
+        .iter()
+        .map(|p| norm.to_unit_f64(p))
+        .collect();
+    let tgt_unit: Vec<[f32; 3]> = subsample(target, s.max_target_points, &mut rng)
+        .iter()
+        .map(|p| norm.to_unit(p))
+        .collect();
     let (src_lo, src_hi) = crate::cloud::bounding_box(&src_unit).expect("validated non-empty");
     if (src_hi - src_lo).max() < 1e-9 {
-        return Err(Error::NoExtent { role: Role::Source, extent: (src_hi - src_lo).max() * norm.scale });
+        return Err(Error::NoExtent {
+            role: Role::Source,
+            extent: (src_hi - src_lo).max() * norm.scale,
+        });
     }
     let kernel = s.robust_scale.map_or(Kernel::L2, Kernel::GemanMcClure);
 
@@ -275,27 +320,48 @@ fn run(
         None => {
             progress(Stage::Multistart);
             let c_src = centroid(&src_unit).coords;
-            let c_tgt: Vector3<f64> = fit.target().iter().map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)).sum::<Vector3<f64>>() / fit.target().len() as f64;
-            let rotations = if s.multistart { cube_rotations() } else { vec![Rotation3::identity()] };
+            let c_tgt: Vector3<f64> = fit
+                .target()
+                .iter()
+                .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+                .sum::<Vector3<f64>>()
+                / fit.target().len() as f64;
+            let rotations = if s.multistart {
+                cube_rotations()
+            } else {
+                vec![Rotation3::identity()]
+            };
             let mlp = fit.mlp();
-            let candidates: Vec<(f64, Isometry3<f64>)> = rotations
+            let ms_source = subsample(&src_unit, s.multistart_points, &mut rng);
+            let refine = |pose: Isometry3<f64>, steps: usize| {
+                let mut lm = Lm::new(pose, &s.lm);
+                for _ in 0..steps {
+                    let outcome = lm.step(mlp, &ms_source, kernel);
+                    if lm.is_converged(&outcome) {
+                        break;
+                    }
+                }
+                (crate::lm::cost(mlp, &ms_source, &lm.pose, kernel), lm.pose)
+            };
+            let mut candidates: Vec<(f64, Isometry3<f64>)> = rotations
                 .par_iter()
                 .map(|r| {
                     let q = UnitQuaternion::from_rotation_matrix(r);
-                    let t = Translation3::from(c_tgt - r * c_src);
-                    let mut lm = Lm::new(Isometry3::from_parts(t, q), &s.lm);
-                    for _ in 0..s.multistart_lm_steps {
-                        let outcome = lm.step(mlp, &src_unit, kernel);
-                        if lm.is_converged(&outcome) {
-                            break;
-                        }
-                    }
-                    let c = crate::lm::cost(mlp, &src_unit, &lm.pose, kernel);
-                    (c, lm.pose)
+                    refine(Isometry3::from_parts(Translation3::from(c_tgt - r * c_src), q), s.multistart_lm_steps)
                 })
                 .collect();
-            // Lowest cost; ties keep the earlier candidate (identity first).
-            candidates.iter().fold(candidates[0], |best, c| if c.0 < best.0 { *c } else { best }).1
+            // Stable sort: equal costs keep the candidate order (identity first).
+            candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+            candidates.truncate(s.multistart_keep.max(1));
+            let mut finalists: Vec<(f64, Isometry3<f64>)> = candidates.par_iter().map(|(_, p)| refine(*p, s.multistart_refine_steps)).collect();
+            finalists.sort_by(|a, b| a.0.total_cmp(&b.0));
+            if std::env::var_os("SDFREG_DEBUG").is_some() {
+                let c: Vec<_> = finalists.iter().map(|(c, p)| (*c, p.rotation.angle().to_degrees())).collect();
+                eprintln!("multistart finalists (cost, angle from identity °): {c:?}");
+            }
+            // Near-ties (symmetric shapes) go to the least rotation: the least-motion prior.
+            let best = finalists[0].0;
+            finalists.iter().filter(|c| c.0 <= best * (1.0 + s.multistart_tie)).min_by(|a, b| a.1.rotation.angle().total_cmp(&b.1.rotation.angle())).unwrap_or(&finalists[0]).1
         }
     };
 
@@ -318,7 +384,11 @@ fn run(
     for _ in 0..s.final_lm_steps {
         let outcome = lm.step(fit.mlp(), &src_unit, kernel);
         if lm.is_converged(&outcome) {
-            stop = if outcome == StepOutcome::NoDecrease { StopReason::NoDecrease } else { StopReason::SmallStep };
+            stop = if outcome == StepOutcome::NoDecrease {
+                StopReason::NoDecrease
+            } else {
+                StopReason::SmallStep
+            };
             break;
         }
     }
@@ -338,11 +408,22 @@ fn run(
         cost += (*r as f64 * norm.scale).powi(2);
     }
     let tree = fit.tree();
-    let d2: Vec<f32> = moved.par_iter().map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance).collect();
+    let d2: Vec<f32> = moved
+        .par_iter()
+        .map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance)
+        .collect();
     let thr = (s.inlier_distance * s.inlier_distance) as f32;
-    let inliers: Vec<f64> = d2.iter().filter(|&&d| d <= thr).map(|&d| d as f64).collect();
+    let inliers: Vec<f64> = d2
+        .iter()
+        .filter(|&&d| d <= thr)
+        .map(|&d| d as f64)
+        .collect();
     let fitness = inliers.len() as f64 / moved.len() as f64;
-    let inlier_rmse = if inliers.is_empty() { 0.0 } else { (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt() * norm.scale };
+    let inlier_rmse = if inliers.is_empty() {
+        0.0
+    } else {
+        (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt() * norm.scale
+    };
 
     Ok(Registration {
         t_target_source: norm.pose_from_unit(&pose_unit),

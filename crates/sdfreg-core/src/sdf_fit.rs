@@ -21,7 +21,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
-use crate::mlp::{Mlp, MlpSettings, BLOCK};
+use crate::mlp::{Mlp, MlpSettings, Workspace, BLOCK};
 
 /// k-d tree over f32 points in the unit frame.
 pub type Tree = ImmutableKdTree<f32, u32, 3, 32>;
@@ -98,7 +98,11 @@ impl Adam {
     const EPS: f32 = 1e-8;
 
     fn new(n: usize) -> Self {
-        Self { m: vec![0.0; n], v: vec![0.0; n], t: 0 }
+        Self {
+            m: vec![0.0; n],
+            v: vec![0.0; n],
+            t: 0,
+        }
     }
 
     fn step(&mut self, params: &mut [f32], grad: &[f32], lr: f32) {
@@ -106,7 +110,11 @@ impl Adam {
         let c1 = 1.0 - Self::B1.powi(self.t);
         let c2 = 1.0 - Self::B2.powi(self.t);
         let step = lr * c2.sqrt() / c1;
-        for ((p, g), (m, v)) in params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())) {
+        for ((p, g), (m, v)) in params
+            .iter_mut()
+            .zip(grad)
+            .zip(self.m.iter_mut().zip(self.v.iter_mut()))
+        {
             *m = Self::B1 * *m + (1.0 - Self::B1) * g;
             *v = Self::B2 * *v + (1.0 - Self::B2) * g * g;
             *p -= step * *m / (v.sqrt() + Self::EPS * c2.sqrt());
@@ -143,14 +151,27 @@ pub struct SdfFitter {
     source_queries: Vec<([f32; 3], [f32; 3])>,
     rng: ChaCha8Rng,
     steps: usize,
+    /// Per-block workspace and gradient, kept between steps (no allocation in the loop).
+    scratch: Vec<(Workspace, Vec<f32>)>,
 }
 
 /// Loss of one query and its derivatives: `w ‖x − Φ n − t‖² + w_e (‖g‖ − 1)²` with
 /// `g = ∇Φ(x)`, `n = g/‖g‖`. Returns `(projection term ‖·‖², total, ∂/∂Φ, ∂/∂g)`.
-fn query_loss(x: &[f32; 3], t: &[f32; 3], w: f32, we: f32, phi: f32, g: &[f32; 3]) -> (f32, f32, f32, [f32; 3]) {
+fn query_loss(
+    x: &[f32; 3],
+    t: &[f32; 3],
+    w: f32,
+    we: f32,
+    phi: f32,
+    g: &[f32; 3],
+) -> (f32, f32, f32, [f32; 3]) {
     let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
     let n = [g[0] / gn, g[1] / gn, g[2] / gn];
-    let d = [x[0] - phi * n[0] - t[0], x[1] - phi * n[1] - t[1], x[2] - phi * n[2] - t[2]];
+    let d = [
+        x[0] - phi * n[0] - t[0],
+        x[1] - phi * n[1] - t[1],
+        x[2] - phi * n[2] - t[2],
+    ];
     let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
     let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
     let e = gn - 1.0;
@@ -163,20 +184,36 @@ fn query_loss(x: &[f32; 3], t: &[f32; 3], w: f32, we: f32, phi: f32, g: &[f32; 3
 impl SdfFitter {
     /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool.
     /// `target` must hold at least 2 points.
-    pub fn new(target: Vec<[f32; 3]>, mlp: &MlpSettings, settings: &FitSettings, seed: u64) -> Self {
+    pub fn new(
+        target: Vec<[f32; 3]>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let net = Mlp::new(mlp, &mut rng);
         let tree = build_tree(&target);
         let m = target.len();
         let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
-        let centres: Vec<[f32; 3]> = if s >= m { target.clone() } else { sample(&mut rng, m, s).into_iter().map(|i| target[i]).collect() };
+        let centres: Vec<[f32; 3]> = if s >= m {
+            target.clone()
+        } else {
+            sample(&mut rng, m, s)
+                .into_iter()
+                .map(|i| target[i])
+                .collect()
+        };
         let centre_tree = build_tree(&centres);
         let k = settings.sigma_neighbour.clamp(1, centres.len() - 1);
         let sigmas: Vec<f32> = centres
             .par_iter()
             .map(|c| {
-                let nn = centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
-                nn.last().map(|n| n.distance.sqrt()).unwrap_or(0.0).max(1e-4)
+                let nn =
+                    centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
+                nn.last()
+                    .map(|n| n.distance.sqrt())
+                    .unwrap_or(0.0)
+                    .max(1e-4)
             })
             .collect();
         let queries: Vec<[f32; 3]> = (0..settings.query_pool)
@@ -191,7 +228,15 @@ impl SdfFitter {
                 q
             })
             .collect();
-        let pool = queries.par_iter().map(|q| (*q, target[tree.nearest_one::<SquaredEuclidean>(q).item as usize])).collect();
+        let pool = queries
+            .par_iter()
+            .map(|q| {
+                (
+                    *q,
+                    target[tree.nearest_one::<SquaredEuclidean>(q).item as usize],
+                )
+            })
+            .collect();
         Self {
             adam: Adam::new(net.num_params()),
             mlp: net,
@@ -202,6 +247,7 @@ impl SdfFitter {
             source_queries: Vec::new(),
             rng,
             steps: 0,
+            scratch: Vec::new(),
         }
     }
 
@@ -232,7 +278,15 @@ impl SdfFitter {
 
     /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
     pub fn add_source_queries(&mut self, points: &[[f32; 3]]) {
-        let new: Vec<([f32; 3], [f32; 3])> = points.par_iter().map(|q| (*q, self.target[self.tree.nearest_one::<SquaredEuclidean>(q).item as usize])).collect();
+        let new: Vec<([f32; 3], [f32; 3])> = points
+            .par_iter()
+            .map(|q| {
+                (
+                    *q,
+                    self.target[self.tree.nearest_one::<SquaredEuclidean>(q).item as usize],
+                )
+            })
+            .collect();
         self.source_queries.extend(new);
         let max = self.settings.max_source_queries.max(1);
         if self.source_queries.len() > max {
@@ -253,7 +307,11 @@ impl SdfFitter {
     fn step(&mut self, lr: f32) -> FitLoss {
         let st = &self.settings;
         let nq = st.batch_queries.min(self.pool.len());
-        let ns = if self.source_queries.is_empty() { 0 } else { st.batch_source };
+        let ns = if self.source_queries.is_empty() {
+            0
+        } else {
+            st.batch_source
+        };
         let nt = st.batch_surface;
         let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
         let mut queries = Vec::with_capacity(nq + ns);
@@ -265,7 +323,9 @@ impl SdfFitter {
             let (x, t) = self.source_queries[self.rng.random_range(0..self.source_queries.len())];
             queries.push(Query { x, t, w: ws_ });
         }
-        let surface: Vec<[f32; 3]> = (0..nt).map(|_| self.target[self.rng.random_range(0..self.target.len())]).collect();
+        let surface: Vec<[f32; 3]> = (0..nt)
+            .map(|_| self.target[self.rng.random_range(0..self.target.len())])
+            .collect();
         let we = st.lambda_eikonal / queries.len().max(1) as f32;
         let wsurf = st.lambda_surface / nt.max(1) as f32;
         let mlp = &self.mlp;
@@ -275,53 +335,57 @@ impl SdfFitter {
         // so the step does not depend on the number of threads.
         let q_blocks: Vec<&[Query]> = queries.chunks(BLOCK).collect();
         let s_blocks: Vec<&[[f32; 3]]> = surface.chunks(BLOCK).collect();
-        let parts: Vec<(f64, f64, Vec<f32>)> = (0..q_blocks.len() + s_blocks.len())
-            .into_par_iter()
-            .map_init(
-                || mlp.workspace(),
-                |ws, i| {
-                    let mut grad = vec![0.0f32; n_params];
-                    if i < q_blocks.len() {
-                        let block = q_blocks[i];
-                        let xs: Vec<[f32; 3]> = block.iter().map(|q| q.x).collect();
-                        mlp.forward_block(&xs, true, ws);
-                        let mut dphi = vec![0.0f32; block.len()];
-                        let mut dgrad = vec![[0.0f32; 3]; block.len()];
-                        let (mut total, mut proj) = (0.0f64, 0.0f64);
-                        for (j, q) in block.iter().enumerate() {
-                            let (d2, l, dp, dg) = query_loss(&q.x, &q.t, q.w, we, ws.value(j), &ws.gradient(j));
-                            total += l as f64;
-                            if q.w == wq {
-                                proj += d2 as f64 * wq as f64;
-                            }
-                            dphi[j] = dp;
-                            dgrad[j] = dg;
+        let tasks = q_blocks.len() + s_blocks.len();
+        if self.scratch.len() < tasks {
+            self.scratch
+                .resize_with(tasks, || (mlp.workspace(), vec![0.0; n_params]));
+        }
+        let parts: Vec<(f64, f64)> = self.scratch[..tasks]
+            .par_iter_mut()
+            .enumerate()
+            .map(|(i, (ws, grad))| {
+                grad.fill(0.0);
+                if i < q_blocks.len() {
+                    let block = q_blocks[i];
+                    let xs: Vec<[f32; 3]> = block.iter().map(|q| q.x).collect();
+                    mlp.forward_block(&xs, true, ws);
+                    let mut dphi = vec![0.0f32; block.len()];
+                    let mut dgrad = vec![[0.0f32; 3]; block.len()];
+                    let (mut total, mut proj) = (0.0f64, 0.0f64);
+                    for (j, q) in block.iter().enumerate() {
+                        let (d2, l, dp, dg) =
+                            query_loss(&q.x, &q.t, q.w, we, ws.value(j), &ws.gradient(j));
+                        total += l as f64;
+                        if q.w == wq {
+                            proj += d2 as f64 * wq as f64;
                         }
-                        mlp.backward_block(ws, &dphi, &dgrad, &mut grad);
-                        (total, proj, grad)
-                    } else {
-                        let block = s_blocks[i - q_blocks.len()];
-                        mlp.forward_block(block, false, ws);
-                        let mut total = 0.0f64;
-                        let dphi: Vec<f32> = (0..block.len())
-                            .map(|j| {
-                                let phi = ws.value(j);
-                                total += (wsurf * phi.abs()) as f64;
-                                wsurf * phi.signum()
-                            })
-                            .collect();
-                        mlp.backward_block(ws, &dphi, &[], &mut grad);
-                        (total, 0.0, grad)
+                        dphi[j] = dp;
+                        dgrad[j] = dg;
                     }
-                },
-            )
+                    mlp.backward_block(ws, &dphi, &dgrad, grad);
+                    (total, proj)
+                } else {
+                    let block = s_blocks[i - q_blocks.len()];
+                    mlp.forward_block(block, false, ws);
+                    let mut total = 0.0f64;
+                    let dphi: Vec<f32> = (0..block.len())
+                        .map(|j| {
+                            let phi = ws.value(j);
+                            total += (wsurf * phi.abs()) as f64;
+                            wsurf * phi.signum()
+                        })
+                        .collect();
+                    mlp.backward_block(ws, &dphi, &[], grad);
+                    (total, 0.0)
+                }
+            })
             .collect();
         let mut grad = vec![0.0f32; n_params];
         let mut loss = FitLoss::default();
-        for (total, proj, g) in parts {
+        for ((total, proj), (_, g)) in parts.into_iter().zip(&self.scratch) {
             loss.total += total;
             loss.projection += proj;
-            for (a, b) in grad.iter_mut().zip(&g) {
+            for (a, b) in grad.iter_mut().zip(g) {
                 *a += b;
             }
         }
@@ -351,18 +415,29 @@ mod tests {
     #[test]
     fn query_loss_derivatives_match_finite_differences() {
         let (x, t) = ([0.3f32, -0.2, 0.5], [0.25f32, -0.1, 0.42]);
-        for (phi, g) in [(0.07f32, [0.5f32, -0.9, 0.3]), (-0.02, [0.1, 0.2, -1.3]), (0.2, [1.5, 0.0, 0.1])] {
+        for (phi, g) in [
+            (0.07f32, [0.5f32, -0.9, 0.3]),
+            (-0.02, [0.1, 0.2, -1.3]),
+            (0.2, [1.5, 0.0, 0.1]),
+        ] {
             let (_, _, dphi, dg) = query_loss(&x, &t, 0.7, 0.05, phi, &g);
             let h = 1e-3f32;
             let f = |p: f32, gg: [f32; 3]| query_loss(&x, &t, 0.7, 0.05, p, &gg).1 as f64;
             let fd_phi = (f(phi + h, g) - f(phi - h, g)) / (2.0 * h as f64);
-            assert!((fd_phi - dphi as f64).abs() < 1e-3, "∂/∂Φ: {fd_phi} vs {dphi}");
+            assert!(
+                (fd_phi - dphi as f64).abs() < 1e-3,
+                "∂/∂Φ: {fd_phi} vs {dphi}"
+            );
             for k in 0..3 {
                 let (mut a, mut b) = (g, g);
                 a[k] += h;
                 b[k] -= h;
                 let fd = (f(phi, a) - f(phi, b)) / (2.0 * h as f64);
-                assert!((fd - dg[k] as f64).abs() < 1e-3, "∂/∂g{k}: {fd} vs {}", dg[k]);
+                assert!(
+                    (fd - dg[k] as f64).abs() < 1e-3,
+                    "∂/∂g{k}: {fd} vs {}",
+                    dg[k]
+                );
             }
         }
     }
@@ -370,10 +445,18 @@ mod tests {
     #[test]
     fn fitted_sdf_of_a_sphere_is_close_to_the_true_distance() {
         let target = sphere(1024);
-        let mut fit = SdfFitter::new(target.clone(), &MlpSettings::default(), &FitSettings::default(), 1);
+        let mut fit = SdfFitter::new(
+            target.clone(),
+            &MlpSettings::default(),
+            &FitSettings::default(),
+            1,
+        );
         let first = fit.train(1, 2e-3);
         let last = fit.train(300, 2e-3);
-        assert!(last.projection < first.projection * 0.5, "loss {first:?} → {last:?}");
+        assert!(
+            last.projection < first.projection * 0.5,
+            "loss {first:?} → {last:?}"
+        );
         // On the surface and at ±0.05 along the normal.
         let mut worst: f32 = 0.0;
         for p in target.iter().step_by(37) {

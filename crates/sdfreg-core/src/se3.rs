@@ -23,7 +23,11 @@ pub fn hat(w: &Vector3<f64>) -> Matrix3<f64> {
 
 /// Inverse of [`hat`]: reads `w` from the skew part of `m` (its symmetric part is ignored).
 pub fn vee(m: &Matrix3<f64>) -> Vector3<f64> {
-    0.5 * Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)])
+    0.5 * Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    )
 }
 
 /// Rodrigues' formula: the rotation by angle `|w|` (radians) about `w/|w|`.
@@ -96,7 +100,10 @@ pub fn exp_se3(xi: &Vector6<f64>) -> Isometry3<f64> {
     let v = Vector3::new(xi[3], xi[4], xi[5]);
     let r = exp_so3(&w);
     let t = left_jacobian(&w) * v;
-    Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r))
+    Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
 }
 
 /// The twist `ξ = [ω; v]` with `exp_se3(ξ) = T` and `|ω| ≤ π`.
@@ -127,7 +134,18 @@ mod tests {
             Vector3::new(0.3, -0.8, 0.5).normalize(),
             Vector3::new(-0.2, 0.1, 0.97).normalize(),
         ];
-        let angles = [0.0, 1e-9, 1e-6, 1e-3, 0.5, 2.0, PI - 1e-2, PI - 1e-4, PI - 1e-7, PI];
+        let angles = [
+            0.0,
+            1e-9,
+            1e-6,
+            1e-3,
+            0.5,
+            2.0,
+            PI - 1e-2,
+            PI - 1e-4,
+            PI - 1e-7,
+            PI,
+        ];
         axes.iter()
             .flat_map(|a| angles.iter().map(move |t| a * *t))
             .collect()
@@ -156,7 +174,10 @@ mod tests {
         for w in vectors() {
             let ours = exp_so3(&w);
             let theirs = Rotation3::from_scaled_axis(w);
-            assert!((ours.matrix() - theirs.matrix()).norm() < 1e-12, "w = {w:?}");
+            assert!(
+                (ours.matrix() - theirs.matrix()).norm() < 1e-12,
+                "w = {w:?}"
+            );
         }
     }
 
@@ -172,8 +193,16 @@ mod tests {
                 let xi = Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z);
                 let t = exp_se3(&xi);
                 let back = exp_se3(&log_se3(&t));
-                assert!(rotation_angle(&t.rotation.to_rotation_matrix(), &back.rotation.to_rotation_matrix()) < 1e-7);
-                assert!((t.translation.vector - back.translation.vector).norm() < 1e-6, "xi = {xi:?}");
+                assert!(
+                    rotation_angle(
+                        &t.rotation.to_rotation_matrix(),
+                        &back.rotation.to_rotation_matrix()
+                    ) < 1e-7
+                );
+                assert!(
+                    (t.translation.vector - back.translation.vector).norm() < 1e-6,
+                    "xi = {xi:?}"
+                );
             }
         }
         // Twists along one axis commute: exp(a ξ) exp(b ξ) = exp((a + b) ξ).
@@ -191,8 +220,10 @@ mod tests {
         // Compare with a truncated power series of the 4×4 twist matrix.
         let xi = Vector6::new(0.7, -0.4, 0.2, 0.3, -1.0, 0.8);
         let mut x = nalgebra::Matrix4::zeros();
-        x.fixed_view_mut::<3, 3>(0, 0).copy_from(&hat(&Vector3::new(xi[0], xi[1], xi[2])));
-        x.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::new(xi[3], xi[4], xi[5]));
+        x.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&hat(&Vector3::new(xi[0], xi[1], xi[2])));
+        x.fixed_view_mut::<3, 1>(0, 3)
+            .copy_from(&Vector3::new(xi[3], xi[4], xi[5]));
         let mut term = nalgebra::Matrix4::identity();
         let mut sum = term;
         for k in 1..40 {

@@ -9,8 +9,16 @@ use rand_distr::{Distribution, StandardNormal};
 pub fn blob<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
     (0..n)
         .map(|_| {
-            let d = Vector3::<f64>::new(StandardNormal.sample(rng), StandardNormal.sample(rng), StandardNormal.sample(rng)).normalize();
-            let r = 1.0 + 0.25 * (3.0 * d.x + 1.0).sin() * (2.0 * d.y).cos() + 0.2 * d.z * d.z * d.z + 0.15 * d.x * d.y;
+            let d = Vector3::<f64>::new(
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+                StandardNormal.sample(rng),
+            )
+            .normalize();
+            let r = 1.0
+                + 0.25 * (3.0 * d.x + 1.0).sin() * (2.0 * d.y).cos()
+                + 0.2 * d.z * d.z * d.z
+                + 0.15 * d.x * d.y;
             Point3::from(d.component_mul(&Vector3::new(0.55, 0.4, 0.3)) * r)
         })
         .collect()
@@ -23,7 +31,10 @@ pub fn bracket<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
     let boxes = [
         (Vector3::new(-0.5, -0.2, -0.1), Vector3::new(1.0, 0.3, 0.2)),
         (Vector3::new(-0.5, 0.1, -0.1), Vector3::new(0.25, 0.45, 0.2)),
-        (Vector3::new(0.25, -0.2, 0.1), Vector3::new(0.15, 0.15, 0.35)),
+        (
+            Vector3::new(0.25, -0.2, 0.1),
+            Vector3::new(0.15, 0.15, 0.35),
+        ),
     ];
     let mut faces = Vec::new();
     for (lo, size) in boxes {

@@ -24,11 +24,18 @@ pub enum Format {
 impl Format {
     /// The format of `path` by its extension.
     pub fn of(path: &Path) -> Result<Self, IoError> {
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("")
+            .to_ascii_lowercase();
         match ext.as_str() {
             "ply" => Ok(Format::Ply),
             "xyz" | "txt" | "csv" | "pts" => Ok(Format::Xyz),
-            _ => Err(IoError::UnknownFormat { path: path.to_path_buf(), extension: ext }),
+            _ => Err(IoError::UnknownFormat {
+                path: path.to_path_buf(),
+                extension: ext,
+            }),
         }
     }
 }
@@ -37,16 +44,28 @@ impl Format {
 pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoError> {
     let path = path.as_ref();
     let format = Format::of(path)?;
-    let bytes = std::fs::read(path).map_err(|source| IoError::Io { path: path.to_path_buf(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
     let points = match format {
         Format::Ply => ply::read(path, &bytes)?,
         Format::Xyz => xyz::read(path, &bytes)?,
     };
     if points.is_empty() {
-        return Err(IoError::Empty { path: path.to_path_buf() });
+        return Err(IoError::Empty {
+            path: path.to_path_buf(),
+        });
     }
-    if let Some(index) = points.iter().position(|p| !p.coords.iter().all(|v| v.is_finite())) {
-        return Err(IoError::NonFinite { path: path.to_path_buf(), line: None, index });
+    if let Some(index) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        return Err(IoError::NonFinite {
+            path: path.to_path_buf(),
+            line: None,
+            index,
+        });
     }
     Ok(points)
 }
@@ -59,7 +78,10 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
         Format::Ply => ply::encode(points),
         Format::Xyz => xyz::encode(points),
     };
-    std::fs::write(path, bytes).map_err(|source| IoError::Io { path: path.to_path_buf(), source })
+    std::fs::write(path, bytes).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 #[cfg(test)]
@@ -70,14 +92,23 @@ mod tests {
     fn round_trip_through_every_format() {
         let dir = std::env::temp_dir().join(format!("sdfreg-io-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let pts = vec![Point3::new(1.0, -2.5, 3.25), Point3::new(1e6 + 0.125, 2e-7, -4.0)];
+        let pts = vec![
+            Point3::new(1.0, -2.5, 3.25),
+            Point3::new(1e6 + 0.125, 2e-7, -4.0),
+        ];
         for name in ["a.ply", "a.xyz", "a.TXT", "a.csv"] {
             let p = dir.join(name);
             write_point_cloud(&p, &pts).unwrap();
             assert_eq!(read_point_cloud(&p).unwrap(), pts, "{name}");
         }
-        assert!(matches!(read_point_cloud(dir.join("a.obj")), Err(IoError::UnknownFormat { .. })));
-        assert!(matches!(read_point_cloud(dir.join("missing.ply")), Err(IoError::Io { .. })));
+        assert!(matches!(
+            read_point_cloud(dir.join("a.obj")),
+            Err(IoError::UnknownFormat { .. })
+        ));
+        assert!(matches!(
+            read_point_cloud(dir.join("missing.ply")),
+            Err(IoError::Io { .. })
+        ));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -24,19 +24,35 @@ fn number(p: &Property) -> Option<f64> {
 }
 
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoError> {
-    let parse = |message: String| IoError::Parse { path: path.into(), line: None, message };
+    let parse = |message: String| IoError::Parse {
+        path: path.into(),
+        line: None,
+        message,
+    };
     let parser = Parser::<DefaultElement>::new();
-    let ply = parser.read_ply(&mut &bytes[..]).map_err(|e| parse(format!("not a valid PLY file: {e}")))?;
-    let vertex = ply.header.elements.get("vertex").ok_or_else(|| parse("no `vertex` element in the header".into()))?;
+    let ply = parser
+        .read_ply(&mut &bytes[..])
+        .map_err(|e| parse(format!("not a valid PLY file: {e}")))?;
+    let vertex = ply
+        .header
+        .elements
+        .get("vertex")
+        .ok_or_else(|| parse("no `vertex` element in the header".into()))?;
     for axis in ["x", "y", "z"] {
         if !vertex.properties.contains_key(axis) {
-            return Err(parse(format!("the `vertex` element has no `{axis}` property")));
+            return Err(parse(format!(
+                "the `vertex` element has no `{axis}` property"
+            )));
         }
     }
     let rows = ply.payload.get("vertex").map(Vec::as_slice).unwrap_or(&[]);
     let mut points = Vec::with_capacity(rows.len());
     for (i, row) in rows.iter().enumerate() {
-        let get = |k: &str| row.get(k).and_then(number).ok_or_else(|| parse(format!("vertex {i}: `{k}` is missing or not a number")));
+        let get = |k: &str| {
+            row.get(k)
+                .and_then(number)
+                .ok_or_else(|| parse(format!("vertex {i}: `{k}` is missing or not a number")))
+        };
         points.push(Point3::new(get("x")?, get("y")?, get("z")?));
     }
     Ok(points)
@@ -62,7 +78,10 @@ mod tests {
     fn reads_ascii_with_extra_properties_and_elements() {
         let text = "ply\nformat ascii 1.0\ncomment hi\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n1 2 3 255\n4.5 5 6 0\n3 0 1 1\n";
         let pts = read(Path::new("a.ply"), text.as_bytes()).unwrap();
-        assert_eq!(pts, vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.5, 5.0, 6.0)]);
+        assert_eq!(
+            pts,
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.5, 5.0, 6.0)]
+        );
     }
 
     #[test]
@@ -71,14 +90,22 @@ mod tests {
         b.extend_from_slice(&(-3i16).to_be_bytes());
         b.extend_from_slice(&7i32.to_be_bytes());
         b.extend_from_slice(&0.5f64.to_be_bytes());
-        assert_eq!(read(Path::new("b.ply"), &b).unwrap(), vec![Point3::new(-3.0, 7.0, 0.5)]);
+        assert_eq!(
+            read(Path::new("b.ply"), &b).unwrap(),
+            vec![Point3::new(-3.0, 7.0, 0.5)]
+        );
     }
 
     #[test]
     fn explains_what_is_missing() {
         let text = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n";
-        let err = read(Path::new("c.ply"), text.as_bytes()).unwrap_err().to_string();
-        assert!(err.contains("c.ply") && err.contains("no `z` property"), "{err}");
+        let err = read(Path::new("c.ply"), text.as_bytes())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("c.ply") && err.contains("no `z` property"),
+            "{err}"
+        );
         let err = read(Path::new("d.ply"), b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n").unwrap_err().to_string();
         assert!(err.starts_with("d.ply: not a valid PLY file"), "{err}");
     }

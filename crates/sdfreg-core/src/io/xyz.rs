@@ -9,7 +9,11 @@ use nalgebra::Point3;
 use crate::error::IoError;
 
 pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoError> {
-    let text = std::str::from_utf8(bytes).map_err(|e| IoError::Parse { path: path.into(), line: None, message: format!("not UTF-8 text (byte {})", e.valid_up_to()) })?;
+    let text = std::str::from_utf8(bytes).map_err(|e| IoError::Parse {
+        path: path.into(),
+        line: None,
+        message: format!("not UTF-8 text (byte {})", e.valid_up_to()),
+    })?;
     let mut points = Vec::new();
     let mut seen_data_line = false;
     for (i, raw) in text.lines().enumerate() {
@@ -17,19 +21,34 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoErro
         if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
             continue;
         }
-        let fields: Vec<&str> = line.split(|c: char| c == ',' || c.is_whitespace()).filter(|f| !f.is_empty()).collect();
-        let parsed: Vec<Option<f64>> = fields.iter().take(3).map(|f| f.parse::<f64>().ok()).collect();
+        let fields: Vec<&str> = line
+            .split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|f| !f.is_empty())
+            .collect();
+        let parsed: Vec<Option<f64>> = fields
+            .iter()
+            .take(3)
+            .map(|f| f.parse::<f64>().ok())
+            .collect();
         if !seen_data_line && parsed.iter().all(|v| v.is_none()) {
             seen_data_line = true; // a header
             continue;
         }
         seen_data_line = true;
         if parsed.len() < 3 || parsed.iter().any(|v| v.is_none()) {
-            return Err(IoError::Parse { path: path.into(), line: Some(i + 1), message: format!("expected three numbers (x y z), found {line:?}") });
+            return Err(IoError::Parse {
+                path: path.into(),
+                line: Some(i + 1),
+                message: format!("expected three numbers (x y z), found {line:?}"),
+            });
         }
         let p = Point3::new(parsed[0].unwrap(), parsed[1].unwrap(), parsed[2].unwrap());
         if !p.coords.iter().all(|v| v.is_finite()) {
-            return Err(IoError::NonFinite { path: path.into(), line: Some(i + 1), index: points.len() });
+            return Err(IoError::NonFinite {
+                path: path.into(),
+                line: Some(i + 1),
+                index: points.len(),
+            });
         }
         points.push(p);
     }
@@ -53,15 +72,31 @@ mod tests {
     fn reads_separators_headers_comments_and_extra_columns() {
         let text = "x,y,z,intensity\n# comment\n1,2,3,9\n\n4 5\t6 7 8\r\n";
         let pts = read(Path::new("t.csv"), text.as_bytes()).unwrap();
-        assert_eq!(pts, vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]);
+        assert_eq!(
+            pts,
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+        );
     }
 
     #[test]
     fn names_the_line_of_bad_data() {
         let err = read(Path::new("t.xyz"), b"1 2 3\n4 5\n").unwrap_err();
         assert!(matches!(err, IoError::Parse { line: Some(2), .. }), "{err}");
-        assert_eq!(err.to_string(), "t.xyz:2: expected three numbers (x y z), found \"4 5\"");
+        assert_eq!(
+            err.to_string(),
+            "t.xyz:2: expected three numbers (x y z), found \"4 5\""
+        );
         let err = read(Path::new("t.xyz"), b"1 2 3\n4 nan 6\n").unwrap_err();
-        assert!(matches!(err, IoError::NonFinite { line: Some(2), index: 1, .. }), "{err}");
+        assert!(
+            matches!(
+                err,
+                IoError::NonFinite {
+                    line: Some(2),
+                    index: 1,
+                    ..
+                }
+            ),
+            "{err}"
+        );
     }
 }
