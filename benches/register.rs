@@ -76,7 +76,7 @@ fn fit_and_lm(c: &mut Criterion) {
 fn full(c: &mut Criterion) {
     let mut g = c.benchmark_group("register");
     g.sample_size(10);
-    for n in [1024usize] {
+    for n in [1024usize, 10_000] {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let target = shapes::blob(n, &mut rng);
         let motion = Isometry3::from_parts(

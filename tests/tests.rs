@@ -1,1 +1,5 @@
+//! Integration tests of sdfreg-core on procedural shapes (no data files needed).
 
+mod common;
+mod io;
+mod register;

@@ -68,7 +68,7 @@ impl Normalization {
         let scale = (hi - lo).max();
         let centre = (lo.coords + hi.coords) * 0.5;
         // Relative to the coordinates' magnitude: a cloud 1e-9 wide at 1e6 is a single point.
-        if !(scale > 1e-9 * (1.0 + centre.amax())) {
+        if scale.is_nan() || scale <= 1e-9 * (1.0 + centre.amax()) {
             return Err(Error::NoExtent {
                 role: Role::Target,
                 extent: scale,

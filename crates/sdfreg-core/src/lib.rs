@@ -15,7 +15,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Modules: [`register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
+//! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
 //! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`se3`]
 //! (exp/log maps), [`cloud`] (normalisation), [`io`] (PLY/XYZ), [`protocol`] (the paper's
 //! evaluation pairs and error measures), [`shapes`] (procedural test shapes).

@@ -650,14 +650,14 @@ mod tests {
         let (_, grad) = test_loss(&net, &pts, tangents);
         let h = 2e-3f32;
         let mut worst = 0.0f64;
-        for i in 0..net.num_params() {
+        for (i, &gi) in grad.iter().enumerate() {
             let mut a = net.clone();
             a.params_mut()[i] += h;
             let mut b = net.clone();
             b.params_mut()[i] -= h;
             let fd = (test_loss(&a, &pts, tangents).0 - test_loss(&b, &pts, tangents).0)
                 / (2.0 * h as f64);
-            let rel = (fd - grad[i] as f64).abs() / (1.0 + fd.abs());
+            let rel = (fd - gi as f64).abs() / (1.0 + fd.abs());
             worst = worst.max(rel);
         }
         assert!(

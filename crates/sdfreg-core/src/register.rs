@@ -128,7 +128,7 @@ impl RegisterSettings {
         if self.max_source_points < MIN_POINTS || self.max_target_points < MIN_POINTS {
             return bad("max_*_points", "must be at least 10");
         }
-        if !(self.inlier_distance > 0.0) {
+        if self.inlier_distance.is_nan() || self.inlier_distance <= 0.0 {
             return bad("inlier_distance", "must be positive");
         }
         if let Some(c) = self.robust_scale {
@@ -347,21 +347,35 @@ fn run(
                 .par_iter()
                 .map(|r| {
                     let q = UnitQuaternion::from_rotation_matrix(r);
-                    refine(Isometry3::from_parts(Translation3::from(c_tgt - r * c_src), q), s.multistart_lm_steps)
+                    refine(
+                        Isometry3::from_parts(Translation3::from(c_tgt - r * c_src), q),
+                        s.multistart_lm_steps,
+                    )
                 })
                 .collect();
             // Stable sort: equal costs keep the candidate order (identity first).
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
             candidates.truncate(s.multistart_keep.max(1));
-            let mut finalists: Vec<(f64, Isometry3<f64>)> = candidates.par_iter().map(|(_, p)| refine(*p, s.multistart_refine_steps)).collect();
+            let mut finalists: Vec<(f64, Isometry3<f64>)> = candidates
+                .par_iter()
+                .map(|(_, p)| refine(*p, s.multistart_refine_steps))
+                .collect();
             finalists.sort_by(|a, b| a.0.total_cmp(&b.0));
             if std::env::var_os("SDFREG_DEBUG").is_some() {
-                let c: Vec<_> = finalists.iter().map(|(c, p)| (*c, p.rotation.angle().to_degrees())).collect();
+                let c: Vec<_> = finalists
+                    .iter()
+                    .map(|(c, p)| (*c, p.rotation.angle().to_degrees()))
+                    .collect();
                 eprintln!("multistart finalists (cost, angle from identity °): {c:?}");
             }
             // Near-ties (symmetric shapes) go to the least rotation: the least-motion prior.
             let best = finalists[0].0;
-            finalists.iter().filter(|c| c.0 <= best * (1.0 + s.multistart_tie)).min_by(|a, b| a.1.rotation.angle().total_cmp(&b.1.rotation.angle())).unwrap_or(&finalists[0]).1
+            finalists
+                .iter()
+                .filter(|c| c.0 <= best * (1.0 + s.multistart_tie))
+                .min_by(|a, b| a.1.rotation.angle().total_cmp(&b.1.rotation.angle()))
+                .unwrap_or(&finalists[0])
+                .1
         }
     };
 

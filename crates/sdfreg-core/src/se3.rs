@@ -113,7 +113,7 @@ pub fn log_se3(t: &Isometry3<f64>) -> Vector6<f64> {
     let v = left_jacobian(&w)
         .lu()
         .solve(&t.translation.vector)
-        .unwrap_or_else(|| t.translation.vector);
+        .unwrap_or(t.translation.vector);
     Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z)
 }
 

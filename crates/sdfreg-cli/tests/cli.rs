@@ -1,0 +1,193 @@
+//! The `sdfreg` binary: output formats, exit codes and one-line errors.
+
+use std::path::Path;
+use std::process::Command;
+
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+
+fn sdfreg() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_sdfreg"))
+}
+
+fn write_xyz(path: &Path, pts: &[Point3<f64>]) {
+    sdfreg_core::io::write_point_cloud(path, pts).unwrap();
+}
+
+fn pair(dir: &Path) -> Isometry3<f64> {
+    let target = sdfreg_core::shapes::blob(800, &mut rand_chacha::ChaCha8Rng::seed_from_u64(9));
+    let m = Isometry3::from_parts(
+        Translation3::new(0.2, 0.1, -0.3),
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.3, 0.4, -0.2)),
+    );
+    write_xyz(&dir.join("tgt.ply"), &target);
+    write_xyz(
+        &dir.join("src.xyz"),
+        &target.iter().map(|p| m * p).collect::<Vec<_>>(),
+    );
+    m.inverse()
+}
+
+fn parse_matrix(text: &str) -> Matrix4<f64> {
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(|s| s.parse().unwrap())
+        .collect();
+    assert_eq!(v.len(), 16, "{text}");
+    Matrix4::from_row_slice(&v)
+}
+
+const QUICK: [&str; 4] = ["--prefit-steps", "300", "--alternations", "5"];
+
+#[test]
+fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = pair(dir.path());
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(dir.path().join("tgt.ply"))
+        .args(QUICK)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let m = parse_matrix(&String::from_utf8(out.stdout).unwrap());
+    let err = (m - truth.to_homogeneous()).amax();
+    assert!(err < 0.02, "matrix off by {err}");
+
+    let json = dir.path().join("r.json");
+    let aligned = dir.path().join("aligned.ply");
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(dir.path().join("tgt.ply"))
+        .args(QUICK)
+        .arg("-o")
+        .arg(&json)
+        .arg("--aligned")
+        .arg(&aligned)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(out.stdout.is_empty());
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for key in [
+        "transformation",
+        "converged",
+        "fitness",
+        "inlier_rmse",
+        "iterations",
+        "time_ms",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    let rows: Vec<Vec<f64>> = serde_json::from_value(v["transformation"].clone()).unwrap();
+    assert!((rows[0][3] - truth.translation.vector.x).abs() < 0.01);
+    let moved = sdfreg_core::io::read_point_cloud(&aligned).unwrap();
+    assert_eq!(moved.len(), 800);
+
+    // Refuses to overwrite without --force, and never over an input.
+    let again = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(dir.path().join("tgt.ply"))
+        .arg("-o")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("exists; pass --force"));
+    let over_input = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(dir.path().join("tgt.ply"))
+        .arg("--aligned")
+        .arg(dir.path().join("tgt.ply"))
+        .arg("--force")
+        .output()
+        .unwrap();
+    assert_eq!(over_input.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&over_input.stderr)
+        .contains("refusing to write the output over an input"));
+}
+
+#[test]
+fn bad_input_exits_2_with_one_line_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    pair(dir.path());
+    let bad = dir.path().join("bad.xyz");
+    std::fs::write(&bad, "1 2 3\n4 five 6\n").unwrap();
+    let cases: Vec<(Vec<std::ffi::OsString>, &str)> = vec![
+        (
+            vec![bad.clone().into(), dir.path().join("tgt.ply").into()],
+            "bad.xyz:2: expected three numbers",
+        ),
+        (
+            vec![
+                dir.path().join("missing.ply").into(),
+                dir.path().join("tgt.ply").into(),
+            ],
+            "missing.ply",
+        ),
+        (
+            vec![
+                dir.path().join("src.obj").into(),
+                dir.path().join("tgt.ply").into(),
+            ],
+            "unknown point-cloud format",
+        ),
+    ];
+    for (args, expected) in cases {
+        let out = sdfreg().arg("register").args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(err.contains(expected), "expected {expected:?} in {err:?}");
+        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err:?}");
+    }
+    let init = dir.path().join("init.txt");
+    std::fs::write(&init, "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(dir.path().join("tgt.ply"))
+        .arg("--init")
+        .arg(&init)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a rigid transform"));
+}
+
+#[test]
+fn demo_reports_a_small_error() {
+    let out = sdfreg().arg("demo").args(QUICK).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("rotation error"))
+        .unwrap();
+    let deg: f64 = line
+        .split_whitespace()
+        .nth(2)
+        .unwrap()
+        .trim_end_matches('°')
+        .trim_end_matches(',')
+        .trim_end_matches('°')
+        .parse()
+        .unwrap();
+    assert!(deg < 1.0, "{line}");
+}

@@ -1,0 +1,165 @@
+//! End-to-end registration: accuracy in degrees and units, frames, determinism, bad input.
+
+use nalgebra::Point3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use sdfreg_core::protocol::pose_errors;
+use sdfreg_core::{register, shapes, Error, Role};
+
+use crate::common::{motion, moved, quick};
+
+fn blob(n: usize, seed: u64) -> Vec<Point3<f64>> {
+    shapes::blob(n, &mut ChaCha8Rng::seed_from_u64(seed))
+}
+
+#[test]
+fn recovers_a_40_degree_motion_of_a_blob() {
+    let target = blob(1024, 1);
+    let m = motion(40.0, [0.3, -0.2, 0.25]);
+    let r = register(&moved(&target, &m), &target, None, &quick()).unwrap();
+    let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    assert!(
+        rot < 1.0 && tr < 0.01,
+        "rotation error {rot}°, translation error {tr}"
+    );
+    assert!(r.converged);
+    assert!(r.fitness > 0.95, "fitness {}", r.fitness);
+    assert!(r.inlier_rmse < 0.02, "inlier RMSE {}", r.inlier_rmse);
+    // JᵀJ is symmetric positive definite for a generic shape.
+    assert!((r.information - r.information.transpose()).amax() < 1e-9 * r.information.amax());
+    assert!(r.information.symmetric_eigenvalues().min() > 0.0);
+}
+
+#[test]
+fn multistart_recovers_a_large_rotation_of_a_bracket() {
+    let target = shapes::bracket(1500, &mut ChaCha8Rng::seed_from_u64(2));
+    let m = motion(150.0, [-0.4, 0.1, 0.3]);
+    let r = register(&moved(&target, &m), &target, None, &quick()).unwrap();
+    let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    assert!(
+        rot < 1.0 && tr < 0.01,
+        "rotation error {rot}°, translation error {tr}"
+    );
+}
+
+#[test]
+fn result_is_in_user_units_and_frame_far_from_the_origin() {
+    // Millimetres, around a georeferenced-like offset: normalisation must undo both.
+    let offset = nalgebra::Vector3::new(4.0e5, 5.2e6, 120.0);
+    let target: Vec<Point3<f64>> = blob(1024, 3)
+        .iter()
+        .map(|p| Point3::from(p.coords * 1000.0 + offset))
+        .collect();
+    let m = motion(25.0, [150.0, -80.0, 60.0]);
+    let source = moved(&target, &m);
+    let r = register(&source, &target, None, &quick()).unwrap();
+    let (rot, _) = pose_errors(&r.t_target_source, &m.inverse());
+    // Far from the origin, a tiny rotation error moves the translation vector a lot; what
+    // matters is where the points land: their worst displacement from the truth, in mm.
+    let worst = source
+        .iter()
+        .map(|p| (r.t_target_source * p - m.inverse() * p).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        rot < 1.0 && worst < 10.0,
+        "rotation error {rot}°, worst point error {worst} mm"
+    );
+    assert!(
+        r.inlier_distance > 10.0,
+        "inlier distance is in user units: {}",
+        r.inlier_distance
+    );
+}
+
+#[test]
+fn initial_guess_replaces_the_multistart() {
+    let target = blob(800, 4);
+    let m = motion(170.0, [0.1, 0.0, 0.0]);
+    let source = moved(&target, &m);
+    // A guess 10° off the truth.
+    let guess = motion(10.0, [0.02, 0.0, 0.0]) * m.inverse();
+    let mut s = quick();
+    s.multistart = false;
+    let r = register(&source, &target, Some(&guess), &s).unwrap();
+    let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    assert!(
+        rot < 1.0 && tr < 0.01,
+        "rotation error {rot}°, translation error {tr}"
+    );
+}
+
+#[test]
+fn same_seed_same_result_whatever_the_thread_count() {
+    let target = blob(600, 5);
+    let source = moved(&target, &motion(30.0, [0.1, 0.2, 0.0]));
+    let mut s = quick();
+    s.fit.prefit_steps = 100;
+    s.alternations = 2;
+    s.threads = 1;
+    let a = register(&source, &target, None, &s).unwrap();
+    s.threads = 2;
+    let b = register(&source, &target, None, &s).unwrap();
+    assert_eq!(a.t_target_source, b.t_target_source);
+    assert_eq!(a.information, b.information);
+    s.seed = 7;
+    let c = register(&source, &target, None, &s).unwrap();
+    assert_ne!(
+        a.t_target_source, c.t_target_source,
+        "a different seed should change the fit"
+    );
+}
+
+#[test]
+fn bad_input_is_a_typed_error() {
+    let good = blob(100, 6);
+    let s = quick();
+    let few = &good[..5];
+    assert!(matches!(
+        register(few, &good, None, &s),
+        Err(Error::TooFewPoints {
+            role: Role::Source,
+            found: 5,
+            ..
+        })
+    ));
+    let mut nan = good.clone();
+    nan[42].y = f64::NAN;
+    let err = register(&good, &nan, None, &s).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            Error::NonFinite {
+                role: Role::Target,
+                index: 42,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(
+        err.to_string(),
+        "target cloud: point 42 has a non-finite coordinate [0.0, NaN, 0.0]".replace(
+            "[0.0, NaN, 0.0]",
+            &format!("{:?}", [nan[42].x, nan[42].y, nan[42].z])
+        )
+    );
+    let single = vec![Point3::new(1.0, 2.0, 3.0); 50];
+    assert!(matches!(
+        register(&good, &single, None, &s),
+        Err(Error::NoExtent {
+            role: Role::Target,
+            ..
+        })
+    ));
+    let mut bad = s.clone();
+    bad.mlp.width = 0;
+    assert!(matches!(
+        register(&good, &good, None, &bad),
+        Err(Error::InvalidSetting { .. })
+    ));
+    let inf_guess = nalgebra::Isometry3::translation(f64::INFINITY, 0.0, 0.0);
+    assert!(matches!(
+        register(&good, &good, Some(&inf_guess), &s),
+        Err(Error::InvalidInit)
+    ));
+}
