@@ -53,6 +53,15 @@ fn fit_and_lm(c: &mut Criterion) {
         (settings.batch_queries + settings.batch_surface) as u64,
     ));
     g.bench_function("adam_step", |b| b.iter(|| fit.train(1, 1e-3)));
+    let moved: Vec<[f32; 3]> = target
+        .iter()
+        .map(|p| [p[0] + 0.01, p[1], p[2] - 0.02])
+        .collect();
+    let mut fit_src = fit.clone();
+    fit_src.add_source_queries(&moved);
+    g.bench_function("adam_step_with_source_queries", |b| {
+        b.iter(|| fit_src.train(1, 1e-3))
+    });
     g.finish();
     let source: Vec<Point3<f64>> = target
         .iter()

@@ -87,7 +87,12 @@ pub fn run(a: EvalArgs) -> Result<()> {
     );
     println!("| protocol | pairs | rot mean (°) | rot RMSE | rot median | t mean | t RMSE | t median | <5°/0.05 | <1°/0.01 | median time (s) |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
-    for (pi, protocol) in protocols.iter().enumerate() {
+    for protocol in &protocols {
+        // Pairs depend on the protocol itself, not on which others were asked for.
+        let pi = Protocol::ALL
+            .iter()
+            .position(|p| p == protocol)
+            .unwrap_or(0);
         let bar = crate::progress_bar(a.pairs as u64);
         bar.set_message(protocol.name());
         let mut results = Vec::new();
@@ -103,6 +108,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
             let r = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
                 .with_context(|| format!("pair {i} ({name})"))?;
             let (re, te) = pose_errors(&r.t_target_source, &pair.t_target_source);
+            if std::env::var_os("SDFREG_DEBUG").is_some() {
+                eprintln!(
+                    "pair {i} {name}: truth {:.1}°, estimate {:.1}°, error {re:.2}°",
+                    pair.t_target_source.rotation.angle().to_degrees(),
+                    r.t_target_source.rotation.angle().to_degrees()
+                );
+            }
             results.push(PairResult {
                 protocol: protocol.name(),
                 index: i,

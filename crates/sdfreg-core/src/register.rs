@@ -56,13 +56,16 @@ pub struct RegisterSettings {
     pub multistart: bool,
     /// LM steps per multi-start candidate. Default 5.
     pub multistart_lm_steps: usize,
-    /// Source points used by each multi-start candidate at most. Default 512.
+    /// Source points used by each multi-start candidate at most. Default 256.
     pub multistart_points: usize,
     /// Candidates kept after the first multi-start round, for further refinement. Default 4.
     pub multistart_keep: usize,
     /// LM steps per kept candidate in the second round. Default 15.
     pub multistart_refine_steps: usize,
-    /// Candidates whose cost is within this fraction of the best are ties, and the one with the
+    /// Finalists' scores truncate each point's squared nearest-neighbour distance at this
+    /// distance, normalised units. Default 0.05.
+    pub multistart_truncation: f64,
+    /// Candidates whose score is within this fraction of the best are ties, and the one with the
     /// smallest rotation wins (a least-motion prior for symmetric shapes). Default 0.1.
     pub multistart_tie: f64,
     /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
@@ -91,9 +94,10 @@ impl Default for RegisterSettings {
             final_lm_steps: 10,
             multistart: true,
             multistart_lm_steps: 5,
-            multistart_points: 512,
+            multistart_points: 256,
             multistart_keep: 4,
             multistart_refine_steps: 15,
+            multistart_truncation: 0.05,
             multistart_tie: 0.1,
             max_source_points: 4096,
             max_target_points: 100_000,
@@ -304,7 +308,14 @@ fn run(
     }
     let kernel = s.robust_scale.map_or(Kernel::L2, Kernel::GemanMcClure);
 
+    let debug = std::env::var_os("SDFREG_DEBUG").is_some();
+    let lap = |what: &str| {
+        if debug {
+            eprintln!("{what}: {:.0} ms", start.elapsed().as_secs_f64() * 1e3);
+        }
+    };
     let mut fit = SdfFitter::new(tgt_unit, &s.mlp, &s.fit, s.seed ^ 0x5DF);
+    lap("fit set-up");
     let chunk = 50.max(s.fit.prefit_steps / 10);
     let mut done = 0;
     while done < s.fit.prefit_steps {
@@ -314,6 +325,7 @@ fn run(
         progress(Stage::Prefit(done, s.fit.prefit_steps));
     }
 
+    lap("pre-fit");
     // Initial pose, unit frame.
     let pose0 = match init {
         Some(t) => norm.pose_to_unit(t),
@@ -353,23 +365,48 @@ fn run(
                     )
                 })
                 .collect();
-            // Stable sort: equal costs keep the candidate order (identity first).
+            // Stable sort: equal costs keep the candidate order (identity first). Starts that
+            // converged to the same pose are kept once.
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
-            candidates.truncate(s.multistart_keep.max(1));
-            let mut finalists: Vec<(f64, Isometry3<f64>)> = candidates
+            let mut kept: Vec<Isometry3<f64>> = Vec::new();
+            for (_, p) in &candidates {
+                let distinct = kept.iter().all(|k| {
+                    k.rotation.angle_to(&p.rotation) > 5f64.to_radians()
+                        || (k.translation.vector - p.translation.vector).norm() > 0.02
+                });
+                if distinct && kept.len() < s.multistart_keep.max(1) {
+                    kept.push(*p);
+                }
+            }
+            // Finalists are refined further, then scored on the target points themselves (the
+            // pre-fitted SDF is too coarse to separate near-symmetric poses): mean squared
+            // distance to the nearest target point, truncated at `multistart_truncation`.
+            let tree = fit.tree();
+            let tau2 = s.multistart_truncation * s.multistart_truncation;
+            let finalists: Vec<(f64, Isometry3<f64>)> = kept
                 .par_iter()
-                .map(|(_, p)| refine(*p, s.multistart_refine_steps))
+                .map(|p| {
+                    let (_, pose) = refine(*p, s.multistart_refine_steps);
+                    let moved = to_f32(&ms_source, &pose);
+                    let score = moved
+                        .iter()
+                        .map(|x| {
+                            (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2)
+                        })
+                        .sum::<f64>()
+                        / moved.len() as f64;
+                    (score, pose)
+                })
                 .collect();
-            finalists.sort_by(|a, b| a.0.total_cmp(&b.0));
-            if std::env::var_os("SDFREG_DEBUG").is_some() {
+            if debug {
                 let c: Vec<_> = finalists
                     .iter()
                     .map(|(c, p)| (*c, p.rotation.angle().to_degrees()))
                     .collect();
-                eprintln!("multistart finalists (cost, angle from identity °): {c:?}");
+                eprintln!("multistart finalists (score, angle from identity °): {c:?}");
             }
             // Near-ties (symmetric shapes) go to the least rotation: the least-motion prior.
-            let best = finalists[0].0;
+            let best = finalists.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
             finalists
                 .iter()
                 .filter(|c| c.0 <= best * (1.0 + s.multistart_tie))
@@ -379,10 +416,13 @@ fn run(
         }
     };
 
+    lap("initial pose");
     let mut lm = Lm::new(pose0, &s.lm);
     for k in 0..s.alternations {
         fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
+        lap("  add queries");
         fit.train(s.fit.refine_steps, s.fit.refine_lr);
+        lap("  train");
         lm.lambda = s.lm.initial_lambda;
         for _ in 0..s.lm_steps_per_alternation {
             let outcome = lm.step(fit.mlp(), &src_unit, kernel);
@@ -392,6 +432,7 @@ fn run(
         }
         progress(Stage::Alternation(k + 1, s.alternations));
     }
+    lap("alternations");
     progress(Stage::Final);
     let mut stop = StopReason::MaxIterations;
     lm.lambda = s.lm.initial_lambda;
@@ -407,6 +448,7 @@ fn run(
         }
     }
 
+    lap("final LM");
     // Quality measures in the user's frame.
     let pose_unit = lm.pose;
     let moved = to_f32(&src_unit, &pose_unit);

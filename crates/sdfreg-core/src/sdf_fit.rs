@@ -44,6 +44,9 @@ pub struct FitSettings {
     pub refine_lr: f32,
     /// Perturbation queries per Adam step. Default 1024.
     pub batch_queries: usize,
+    /// Perturbation queries per Adam step once moved-source queries exist (the coarse-to-fine
+    /// phase, whose focus is the source's neighbourhood). Default 512.
+    pub refine_batch_queries: usize,
     /// Accumulated moved-source queries per Adam step (once any exist). Default 512.
     pub batch_source: usize,
     /// Target points per Adam step for the surface term. Default 512.
@@ -72,6 +75,7 @@ impl Default for FitSettings {
             refine_steps: 50,
             refine_lr: 1e-3,
             batch_queries: 1024,
+            refine_batch_queries: 512,
             batch_source: 512,
             batch_surface: 512,
             query_pool: 16384,
@@ -306,12 +310,12 @@ impl SdfFitter {
 
     fn step(&mut self, lr: f32) -> FitLoss {
         let st = &self.settings;
-        let nq = st.batch_queries.min(self.pool.len());
-        let ns = if self.source_queries.is_empty() {
-            0
+        let (nq, ns) = if self.source_queries.is_empty() {
+            (st.batch_queries, 0)
         } else {
-            st.batch_source
+            (st.refine_batch_queries, st.batch_source)
         };
+        let nq = nq.min(self.pool.len());
         let nt = st.batch_surface;
         let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
         let mut queries = Vec::with_capacity(nq + ns);
