@@ -38,6 +38,9 @@ pub struct Common {
     /// Adam steps of the SDF pre-fit.
     #[arg(long)]
     pub prefit_steps: Option<usize>,
+    /// Adam steps of SDF refinement per alternation.
+    #[arg(long)]
+    pub refine_steps: Option<usize>,
     /// Robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
     #[arg(long)]
     pub robust_scale: Option<f64>,
@@ -57,6 +60,9 @@ impl Common {
         };
         if let Some(a) = self.alternations {
             s.alternations = a;
+        }
+        if let Some(r) = self.refine_steps {
+            s.fit.refine_steps = r;
         }
         if let Some(p) = self.prefit_steps {
             s.fit.prefit_steps = p;

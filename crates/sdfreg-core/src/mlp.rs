@@ -127,26 +127,28 @@ fn exp_nonpositive(x: f32) -> f32 {
     f32::from_bits(((n as i32 + 127) << 23) as u32) * p
 }
 
-/// `ln(1 + u)` for `u ∈ [0, 1]` (f32, relative error < 3e-7), branchless: with
-/// `s = u / (2 + u) ≤ 1/3`, `ln(1+u) = 2 atanh(s) = 2 (s + s³/3 + s⁵/5 + …)`.
+/// `ln(1 + u)` for `u ∈ [0, 1]`, given `t = u / (2 + u) ≤ 1/3` (relative error < 3e-7):
+/// `ln(1+u) = 2 atanh(t) = 2 (t + t³/3 + t⁵/5 + …)`, branchless.
 #[inline(always)]
-fn ln_1p_unit(u: f32) -> f32 {
-    let s = u / (2.0 + u);
-    let s2 = s * s;
-    2.0 * s
+fn ln_1p_from_ratio(t: f32) -> f32 {
+    let t2 = t * t;
+    2.0 * t
         * (1.0
-            + s2 * (1.0 / 3.0
-                + s2 * (1.0 / 5.0
-                    + s2 * (1.0 / 7.0 + s2 * (1.0 / 9.0 + s2 * (1.0 / 11.0 + s2 * (1.0 / 13.0)))))))
+            + t2 * (1.0 / 3.0
+                + t2 * (1.0 / 5.0
+                    + t2 * (1.0 / 7.0 + t2 * (1.0 / 9.0 + t2 * (1.0 / 11.0 + t2 * (1.0 / 13.0)))))))
 }
 
-/// Numerically stable softplus and σ(βz): returns `(sp(z), σ(βz))`.
+/// Numerically stable softplus and σ(βz): returns `(sp(z), σ(βz))`. `inv_beta = 1/β`.
+/// One division per call: `1/((1+e)(2+e))` yields both `1/(1+e)` and `e/(2+e)`.
 #[inline(always)]
-fn softplus_sigmoid(z: f32, beta: f32) -> (f32, f32) {
+fn softplus_sigmoid(z: f32, beta: f32, inv_beta: f32) -> (f32, f32) {
     let y = beta * z;
     let e = exp_nonpositive(-y.abs());
-    let sp = (y.max(0.0) + ln_1p_unit(e)) / beta;
-    let inv = 1.0 / (1.0 + e);
+    let (a, b) = (1.0 + e, 2.0 + e);
+    let r = 1.0 / (a * b);
+    let inv = b * r;
+    let sp = (y.max(0.0) + ln_1p_from_ratio(e * a * r)) * inv_beta;
     let s = if y >= 0.0 { inv } else { e * inv };
     (sp, s)
 }
@@ -161,6 +163,7 @@ mod kernels {
     #[multiversion(targets("x86_64+avx512f+avx512vl+avx2+fma", "x86_64+avx2+fma", "aarch64+neon"))]
     pub fn activate(z: &mut [f32], h: &mut [f32], s: &mut [f32], bias: &[f32], beta: f32) {
         let w = bias.len();
+        let inv_beta = 1.0 / beta;
         for ((zc, hc), sc) in z
             .chunks_exact_mut(w)
             .zip(h.chunks_exact_mut(w))
@@ -169,7 +172,7 @@ mod kernels {
             for i in 0..w {
                 let zi = zc[i] + bias[i];
                 zc[i] = zi;
-                let (sp, sg) = softplus_sigmoid(zi, beta);
+                let (sp, sg) = softplus_sigmoid(zi, beta, inv_beta);
                 hc[i] = sp;
                 sc[i] = sg;
             }
@@ -556,7 +559,7 @@ mod tests {
             let l = (u as f64).ln_1p();
             worst.1 = worst
                 .1
-                .max(((ln_1p_unit(u) as f64) - l).abs() / l.max(1e-30));
+                .max(((ln_1p_from_ratio(u / (2.0 + u)) as f64) - l).abs() / l.max(1e-30));
         }
         assert!(
             worst.0 < 5e-7 && worst.1 < 5e-7,
@@ -565,7 +568,12 @@ mod tests {
             worst.1
         );
         assert_eq!(exp_nonpositive(-1000.0), exp_nonpositive(-87.0));
-        let (sp, s) = softplus_sigmoid(0.0, 100.0);
+        let (sp, s) = softplus_sigmoid(0.0, 100.0, 0.01);
+        let (sp2, s2) = softplus_sigmoid(-0.05, 100.0, 0.01);
+        assert!(
+            (sp2 as f64 - (-5f64).exp().ln_1p() / 100.0).abs() < 1e-9
+                && (s2 as f64 - 1.0 / (1.0 + 5f64.exp())).abs() < 1e-8
+        );
         assert!((sp - std::f32::consts::LN_2 / 100.0).abs() < 1e-9 && (s - 0.5).abs() < 1e-7);
     }
 

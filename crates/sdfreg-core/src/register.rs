@@ -66,7 +66,7 @@ pub struct RegisterSettings {
     /// distance, normalised units. Default 0.05.
     pub multistart_truncation: f64,
     /// Candidates whose score is within this fraction of the best are ties, and the one with the
-    /// smallest rotation wins (a least-motion prior for symmetric shapes). Default 0.1.
+    /// smallest rotation wins (a least-motion prior for symmetric shapes). Default 0.25.
     pub multistart_tie: f64,
     /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
     pub max_source_points: usize,
@@ -98,7 +98,7 @@ impl Default for RegisterSettings {
             multistart_keep: 4,
             multistart_refine_steps: 15,
             multistart_truncation: 0.05,
-            multistart_tie: 0.1,
+            multistart_tie: 0.25,
             max_source_points: 4096,
             max_target_points: 100_000,
             robust_scale: None,
@@ -345,6 +345,11 @@ fn run(
             };
             let mlp = fit.mlp();
             let ms_source = subsample(&src_unit, s.multistart_points, &mut rng);
+            // Candidates are scored on the target points themselves (the pre-fitted SDF is too
+            // coarse to separate near-symmetric poses): mean squared distance of the moved
+            // points to their nearest target point, truncated at `multistart_truncation`.
+            let tree = fit.tree();
+            let tau2 = s.multistart_truncation * s.multistart_truncation;
             let refine = |pose: Isometry3<f64>, steps: usize| {
                 let mut lm = Lm::new(pose, &s.lm);
                 for _ in 0..steps {
@@ -353,7 +358,13 @@ fn run(
                         break;
                     }
                 }
-                (crate::lm::cost(mlp, &ms_source, &lm.pose, kernel), lm.pose)
+                let moved = to_f32(&ms_source, &lm.pose);
+                let score = moved
+                    .iter()
+                    .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
+                    .sum::<f64>()
+                    / moved.len() as f64;
+                (score, lm.pose)
             };
             let mut candidates: Vec<(f64, Isometry3<f64>)> = rotations
                 .par_iter()
@@ -365,7 +376,7 @@ fn run(
                     )
                 })
                 .collect();
-            // Stable sort: equal costs keep the candidate order (identity first). Starts that
+            // Stable sort: equal scores keep the candidate order (identity first). Starts that
             // converged to the same pose are kept once.
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
             let mut kept: Vec<Isometry3<f64>> = Vec::new();
@@ -378,25 +389,9 @@ fn run(
                     kept.push(*p);
                 }
             }
-            // Finalists are refined further, then scored on the target points themselves (the
-            // pre-fitted SDF is too coarse to separate near-symmetric poses): mean squared
-            // distance to the nearest target point, truncated at `multistart_truncation`.
-            let tree = fit.tree();
-            let tau2 = s.multistart_truncation * s.multistart_truncation;
             let finalists: Vec<(f64, Isometry3<f64>)> = kept
                 .par_iter()
-                .map(|p| {
-                    let (_, pose) = refine(*p, s.multistart_refine_steps);
-                    let moved = to_f32(&ms_source, &pose);
-                    let score = moved
-                        .iter()
-                        .map(|x| {
-                            (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2)
-                        })
-                        .sum::<f64>()
-                        / moved.len() as f64;
-                    (score, pose)
-                })
+                .map(|p| refine(*p, s.multistart_refine_steps))
                 .collect();
             if debug {
                 let c: Vec<_> = finalists
