@@ -38,7 +38,7 @@ pub struct FitSettings {
     pub prefit_steps: usize,
     /// Adam learning rate of the pre-fit. Default 2e-3.
     pub prefit_lr: f32,
-    /// Adam steps in each coarse-to-fine alternation. Default 50.
+    /// Adam steps in each coarse-to-fine alternation. Default 40.
     pub refine_steps: usize,
     /// Adam learning rate of the alternations. Default 1e-3.
     pub refine_lr: f32,
@@ -72,7 +72,7 @@ impl Default for FitSettings {
         Self {
             prefit_steps: 500,
             prefit_lr: 2e-3,
-            refine_steps: 50,
+            refine_steps: 40,
             refine_lr: 1e-3,
             batch_queries: 1024,
             refine_batch_queries: 512,
