@@ -108,13 +108,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
             let r = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
                 .with_context(|| format!("pair {i} ({name})"))?;
             let (re, te) = pose_errors(&r.t_target_source, &pair.t_target_source);
-            if std::env::var_os("SDFREG_DEBUG").is_some() {
-                eprintln!(
-                    "pair {i} {name}: truth {:.1}°, estimate {:.1}°, error {re:.2}°",
-                    pair.t_target_source.rotation.angle().to_degrees(),
-                    r.t_target_source.rotation.angle().to_degrees()
-                );
-            }
             results.push(PairResult {
                 protocol: protocol.name(),
                 index: i,

@@ -308,14 +308,7 @@ fn run(
     }
     let kernel = s.robust_scale.map_or(Kernel::L2, Kernel::GemanMcClure);
 
-    let debug = std::env::var_os("SDFREG_DEBUG").is_some();
-    let lap = |what: &str| {
-        if debug {
-            eprintln!("{what}: {:.0} ms", start.elapsed().as_secs_f64() * 1e3);
-        }
-    };
     let mut fit = SdfFitter::new(tgt_unit, &s.mlp, &s.fit, s.seed ^ 0x5DF);
-    lap("fit set-up");
     let chunk = 50.max(s.fit.prefit_steps / 10);
     let mut done = 0;
     while done < s.fit.prefit_steps {
@@ -325,7 +318,6 @@ fn run(
         progress(Stage::Prefit(done, s.fit.prefit_steps));
     }
 
-    lap("pre-fit");
     // Initial pose, unit frame.
     let pose0 = match init {
         Some(t) => norm.pose_to_unit(t),
@@ -376,10 +368,12 @@ fn run(
                     )
                 })
                 .collect();
-            // Stable sort: equal scores keep the candidate order (identity first). Starts that
-            // converged to the same pose are kept once.
+            // The identity start (plain centroid alignment) is always a finalist: with the
+            // least-motion tie-break it wins whenever nothing fits clearly better. The others
+            // follow by score (stable sort); starts that converged to the same pose count once.
+            let identity = candidates[0].1;
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let mut kept: Vec<Isometry3<f64>> = Vec::new();
+            let mut kept: Vec<Isometry3<f64>> = vec![identity];
             for (_, p) in &candidates {
                 let distinct = kept.iter().all(|k| {
                     k.rotation.angle_to(&p.rotation) > 5f64.to_radians()
@@ -393,13 +387,6 @@ fn run(
                 .par_iter()
                 .map(|p| refine(*p, s.multistart_refine_steps))
                 .collect();
-            if debug {
-                let c: Vec<_> = finalists
-                    .iter()
-                    .map(|(c, p)| (*c, p.rotation.angle().to_degrees()))
-                    .collect();
-                eprintln!("multistart finalists (score, angle from identity °): {c:?}");
-            }
             // Near-ties (symmetric shapes) go to the least rotation: the least-motion prior.
             let best = finalists.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
             finalists
@@ -411,13 +398,10 @@ fn run(
         }
     };
 
-    lap("initial pose");
     let mut lm = Lm::new(pose0, &s.lm);
     for k in 0..s.alternations {
         fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
-        lap("  add queries");
         fit.train(s.fit.refine_steps, s.fit.refine_lr);
-        lap("  train");
         lm.lambda = s.lm.initial_lambda;
         for _ in 0..s.lm_steps_per_alternation {
             let outcome = lm.step(fit.mlp(), &src_unit, kernel);
@@ -427,7 +411,6 @@ fn run(
         }
         progress(Stage::Alternation(k + 1, s.alternations));
     }
-    lap("alternations");
     progress(Stage::Final);
     let mut stop = StopReason::MaxIterations;
     lm.lambda = s.lm.initial_lambda;
@@ -443,7 +426,6 @@ fn run(
         }
     }
 
-    lap("final LM");
     // Quality measures in the user's frame.
     let pose_unit = lm.pose;
     let moved = to_f32(&src_unit, &pose_unit);
