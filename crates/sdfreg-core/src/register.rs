@@ -68,6 +68,10 @@ pub struct RegisterSettings {
     /// Candidates whose score is within this fraction of the best are ties, and the one with the
     /// smallest rotation wins (a least-motion prior for symmetric shapes). Default 0.25.
     pub multistart_tie: f64,
+    /// Pose hypotheses carried through the coarse-to-fine loop (the multi-start's pick, the
+    /// identity start and the best-scoring start, when distinct); the best-fitting one wins.
+    /// Default 3.
+    pub hypotheses: usize,
     /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
     pub max_source_points: usize,
     /// Target points used by the fit at most; more are subsampled (seeded). Default 100000.
@@ -95,6 +99,7 @@ impl Default for RegisterSettings {
             multistart: true,
             multistart_lm_steps: 5,
             multistart_points: 256,
+            hypotheses: 3,
             multistart_keep: 4,
             multistart_refine_steps: 15,
             multistart_truncation: 0.05,
@@ -247,6 +252,38 @@ fn to_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
         .collect()
 }
 
+/// Mean squared distance from `points` to their nearest target point, each truncated at
+/// `tau2` (normalised units²): how well a pose fits the target points themselves.
+fn nn_score(tree: &crate::sdf_fit::Tree, points: &[[f32; 3]], tau2: f64) -> f64 {
+    let sum: f64 = points
+        .iter()
+        .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
+        .sum();
+    sum / points.len().max(1) as f64
+}
+
+/// Index of the candidate with the least rotation among those whose score is within
+/// `(1 + tie)` of the best (the least-motion prior for symmetric shapes).
+fn least_motion(candidates: &[(f64, Isometry3<f64>)], tie: f64) -> usize {
+    let best = candidates.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
+    (0..candidates.len())
+        .filter(|&i| candidates[i].0 <= best * (1.0 + tie))
+        .min_by(|&a, &b| {
+            candidates[a]
+                .1
+                .rotation
+                .angle()
+                .total_cmp(&candidates[b].1.rotation.angle())
+        })
+        .unwrap_or(0)
+}
+
+/// Whether two poses differ by more than 5° or 0.02 normalised units.
+fn distinct(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+    a.rotation.angle_to(&b.rotation) > 5f64.to_radians()
+        || (a.translation.vector - b.translation.vector).norm() > 0.02
+}
+
 /// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
 /// target) replaces the multi-start when given.
 pub fn register(
@@ -319,8 +356,8 @@ fn run(
     }
 
     // Initial pose, unit frame.
-    let pose0 = match init {
-        Some(t) => norm.pose_to_unit(t),
+    let hypotheses: Vec<Isometry3<f64>> = match init {
+        Some(t) => vec![norm.pose_to_unit(t)],
         None => {
             progress(Stage::Multistart);
             let c_src = centroid(&src_unit).coords;
@@ -350,12 +387,7 @@ fn run(
                         break;
                     }
                 }
-                let moved = to_f32(&ms_source, &lm.pose);
-                let score = moved
-                    .iter()
-                    .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
-                    .sum::<f64>()
-                    / moved.len() as f64;
+                let score = nn_score(tree, &to_f32(&ms_source, &lm.pose), tau2);
                 (score, lm.pose)
             };
             let mut candidates: Vec<(f64, Isometry3<f64>)> = rotations
@@ -375,11 +407,7 @@ fn run(
             candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
             let mut kept: Vec<Isometry3<f64>> = vec![identity];
             for (_, p) in &candidates {
-                let distinct = kept.iter().all(|k| {
-                    k.rotation.angle_to(&p.rotation) > 5f64.to_radians()
-                        || (k.translation.vector - p.translation.vector).norm() > 0.02
-                });
-                if distinct && kept.len() < s.multistart_keep.max(1) {
+                if kept.iter().all(|k| distinct(k, p)) && kept.len() < s.multistart_keep.max(1) {
                     kept.push(*p);
                 }
             }
@@ -387,30 +415,54 @@ fn run(
                 .par_iter()
                 .map(|p| refine(*p, s.multistart_refine_steps))
                 .collect();
-            // Near-ties (symmetric shapes) go to the least rotation: the least-motion prior.
-            let best = finalists.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
-            finalists
-                .iter()
-                .filter(|c| c.0 <= best * (1.0 + s.multistart_tie))
-                .min_by(|a, b| a.1.rotation.angle().total_cmp(&b.1.rotation.angle()))
-                .unwrap_or(&finalists[0])
-                .1
+            // Hypotheses carried through the coarse-to-fine loop: the least-motion pick among
+            // near-ties, the identity start and the best score (distinct ones, at most
+            // `hypotheses`). The pre-fitted SDF is often too coarse to decide between them.
+            let pick = least_motion(&finalists, s.multistart_tie);
+            let best = (0..finalists.len())
+                .min_by(|&a, &b| finalists[a].0.total_cmp(&finalists[b].0))
+                .unwrap_or(0);
+            let mut out: Vec<Isometry3<f64>> = Vec::new();
+            for i in [pick, 0, best] {
+                let p = finalists[i].1;
+                if out.len() < s.hypotheses.max(1) && out.iter().all(|q| distinct(q, &p)) {
+                    out.push(p);
+                }
+            }
+            out
         }
     };
 
-    let mut lm = Lm::new(pose0, &s.lm);
+    // Coarse-to-fine (eq. 18-1). Every hypothesis's moved source joins the query set: queries
+    // carry their true nearest target point, so extra ones only teach Φ more of the far field.
+    let mut lms: Vec<Lm> = hypotheses.iter().map(|p| Lm::new(*p, &s.lm)).collect();
     for k in 0..s.alternations {
-        fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
+        for lm in &lms {
+            fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
+        }
         fit.train(s.fit.refine_steps, s.fit.refine_lr);
-        lm.lambda = s.lm.initial_lambda;
-        for _ in 0..s.lm_steps_per_alternation {
-            let outcome = lm.step(fit.mlp(), &src_unit, kernel);
-            if lm.is_converged(&outcome) {
-                break;
+        for lm in &mut lms {
+            lm.lambda = s.lm.initial_lambda;
+            for _ in 0..s.lm_steps_per_alternation {
+                let outcome = lm.step(fit.mlp(), &src_unit, kernel);
+                if lm.is_converged(&outcome) {
+                    break;
+                }
             }
         }
         progress(Stage::Alternation(k + 1, s.alternations));
     }
+    let tau2 = s.multistart_truncation * s.multistart_truncation;
+    let scored: Vec<(f64, Isometry3<f64>)> = lms
+        .iter()
+        .map(|lm| {
+            (
+                nn_score(fit.tree(), &to_f32(&src_unit, &lm.pose), tau2),
+                lm.pose,
+            )
+        })
+        .collect();
+    let mut lm = lms.swap_remove(least_motion(&scored, s.multistart_tie));
     progress(Stage::Final);
     let mut stop = StopReason::MaxIterations;
     lm.lambda = s.lm.initial_lambda;
