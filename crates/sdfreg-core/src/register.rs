@@ -435,6 +435,7 @@ fn run(
 
     // Coarse-to-fine (eq. 18-1). Every hypothesis's moved source joins the query set: queries
     // carry their true nearest target point, so extra ones only teach Φ more of the far field.
+    let tau2 = s.multistart_truncation * s.multistart_truncation;
     let mut lms: Vec<Lm> = hypotheses.iter().map(|p| Lm::new(*p, &s.lm)).collect();
     for k in 0..s.alternations {
         for lm in &lms {
@@ -451,8 +452,20 @@ fn run(
             }
         }
         progress(Stage::Alternation(k + 1, s.alternations));
+        // Halfway, hypotheses that fit clearly worse than the best are dropped.
+        if k + 1 == s.alternations / 2 && lms.len() > 1 {
+            let scores: Vec<f64> = lms
+                .iter()
+                .map(|lm| nn_score(fit.tree(), &to_f32(&src_unit, &lm.pose), tau2))
+                .collect();
+            let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
+            let mut i = 0;
+            lms.retain(|_| {
+                i += 1;
+                scores[i - 1] <= best * (1.0 + s.multistart_tie)
+            });
+        }
     }
-    let tau2 = s.multistart_truncation * s.multistart_truncation;
     let scored: Vec<(f64, Isometry3<f64>)> = lms
         .iter()
         .map(|lm| {
