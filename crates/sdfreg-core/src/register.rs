@@ -4,10 +4,12 @@
 //! 1. validate both clouds; normalise with the target's bounding-box centre and largest side;
 //! 2. pre-fit Φ on the target ([`FitSettings::prefit_steps`]);
 //! 3. initial pose: the caller's guess, or centroid alignment plus a multi-start over the 24
-//!    rotations of the cube group, each refined by a few LM steps on the frozen Φ, keeping the
-//!    lowest cost;
-//! 4. `alternations` times: add the moved source to Φ's queries (eq. 18-1), refine Φ, take
-//!    `lm_steps_per_alternation` LM steps;
+//!    rotations of the cube group, each refined by a few LM steps on the frozen Φ and scored on
+//!    the target points (truncated nearest-neighbour distance); near-ties go to the least
+//!    rotation; up to [`RegisterSettings::hypotheses`] distinct poses go on;
+//! 4. `alternations` times: add the moved source(s) to Φ's queries (eq. 18-1), refine Φ, take
+//!    `lm_steps_per_alternation` LM steps per hypothesis; halfway, hypotheses that fit clearly
+//!    worse are dropped, and at the end the best-fitting one is kept;
 //! 5. final LM steps on the frozen Φ until converged;
 //! 6. map the pose back to the user's frame and measure fitness, inlier RMSE and JᵀJ there.
 //!
