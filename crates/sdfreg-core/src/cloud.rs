@@ -25,6 +25,17 @@ pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
     Point3::from(sum / points.len().max(1) as f64)
 }
 
+/// `points` moved by `pose`, as f32 (the network's precision; unit-frame inputs).
+pub fn transformed_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
+    points
+        .iter()
+        .map(|p| {
+            let x = pose * p;
+            [x.x as f32, x.y as f32, x.z as f32]
+        })
+        .collect()
+}
+
 /// Checks that every coordinate is finite and that there are at least `min` points.
 pub fn validate(points: &[Point3<f64>], role: Role, min: usize) -> Result<(), Error> {
     if let Some(index) = points

@@ -15,6 +15,7 @@
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
+use crate::cloud::transformed_f32;
 use crate::mlp::{Mlp, BLOCK};
 use crate::se3::exp_se3;
 
@@ -83,16 +84,6 @@ pub struct Linearization {
     pub cost: f64,
 }
 
-fn transform_chunk(pose: &Isometry3<f64>, chunk: &[Point3<f64>]) -> Vec<[f32; 3]> {
-    chunk
-        .iter()
-        .map(|p| {
-            let x = pose * p;
-            [x.x as f32, x.y as f32, x.z as f32]
-        })
-        .collect()
-}
-
 /// Normal equations of the points `source` (unit frame) moved by `pose`.
 pub fn linearize(
     mlp: &Mlp,
@@ -105,7 +96,7 @@ pub fn linearize(
         .map_init(
             || mlp.workspace(),
             |ws, chunk| {
-                let xs = transform_chunk(pose, chunk);
+                let xs = transformed_f32(chunk, pose);
                 mlp.forward_block(&xs, true, ws);
                 let mut h = Matrix6::zeros();
                 let mut g = Vector6::zeros();
@@ -147,7 +138,7 @@ pub fn cost(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kernel: Ke
         .map_init(
             || mlp.workspace(),
             |ws, chunk| {
-                let xs = transform_chunk(pose, chunk);
+                let xs = transformed_f32(chunk, pose);
                 mlp.forward_block(&xs, false, ws);
                 (0..xs.len())
                     .map(|j| kernel.rho_weight(ws.value(j) as f64).0)

@@ -162,10 +162,6 @@ pub fn make_pair<R: Rng>(shape: &[Point3<f64>], protocol: Protocol, rng: &mut R)
             source = pick(&source, source.len() / 20, rng);
         }
     }
-    // Shuffle nothing further: the method uses no correspondences, so order is irrelevant.
-    if protocol == Protocol::Density {
-        target = pick(&target, 10_000, rng);
-    }
     Pair {
         source,
         target,

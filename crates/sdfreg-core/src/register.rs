@@ -28,7 +28,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::cloud::{centroid, validate, Normalization};
+use crate::cloud::{centroid, transformed_f32, validate, Normalization};
 use crate::error::{Error, Role};
 use crate::lm::{Kernel, Lm, LmSettings, StepOutcome};
 use crate::mlp::MlpSettings;
@@ -244,16 +244,6 @@ fn subsample(points: &[Point3<f64>], max: usize, rng: &mut ChaCha8Rng) -> Vec<Po
     idx.into_iter().map(|i| points[i]).collect()
 }
 
-fn to_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
-    points
-        .iter()
-        .map(|p| {
-            let x = pose * p;
-            [x.x as f32, x.y as f32, x.z as f32]
-        })
-        .collect()
-}
-
 /// Mean squared distance from `points` to their nearest target point, each truncated at
 /// `tau2` (normalised units²): how well a pose fits the target points themselves.
 fn nn_score(tree: &crate::sdf_fit::Tree, points: &[[f32; 3]], tau2: f64) -> f64 {
@@ -389,7 +379,7 @@ fn run(
                         break;
                     }
                 }
-                let score = nn_score(tree, &to_f32(&ms_source, &lm.pose), tau2);
+                let score = nn_score(tree, &transformed_f32(&ms_source, &lm.pose), tau2);
                 (score, lm.pose)
             };
             let mut candidates: Vec<(f64, Isometry3<f64>)> = rotations
@@ -441,7 +431,7 @@ fn run(
     let mut lms: Vec<Lm> = hypotheses.iter().map(|p| Lm::new(*p, &s.lm)).collect();
     for k in 0..s.alternations {
         for lm in &lms {
-            fit.add_source_queries(&to_f32(&src_unit, &lm.pose));
+            fit.add_source_queries(&transformed_f32(&src_unit, &lm.pose));
         }
         fit.train(s.fit.refine_steps, s.fit.refine_lr);
         for lm in &mut lms {
@@ -458,7 +448,7 @@ fn run(
         if k + 1 == s.alternations / 2 && lms.len() > 1 {
             let scores: Vec<f64> = lms
                 .iter()
-                .map(|lm| nn_score(fit.tree(), &to_f32(&src_unit, &lm.pose), tau2))
+                .map(|lm| nn_score(fit.tree(), &transformed_f32(&src_unit, &lm.pose), tau2))
                 .collect();
             let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
             let mut i = 0;
@@ -472,7 +462,7 @@ fn run(
         .iter()
         .map(|lm| {
             (
-                nn_score(fit.tree(), &to_f32(&src_unit, &lm.pose), tau2),
+                nn_score(fit.tree(), &transformed_f32(&src_unit, &lm.pose), tau2),
                 lm.pose,
             )
         })
@@ -495,7 +485,7 @@ fn run(
 
     // Quality measures in the user's frame.
     let pose_unit = lm.pose;
-    let moved = to_f32(&src_unit, &pose_unit);
+    let moved = transformed_f32(&src_unit, &pose_unit);
     let (phi, grads) = fit.mlp().eval(&moved, true);
     let mut information = Matrix6::zeros();
     let mut cost = 0.0;
