@@ -44,6 +44,9 @@ pub struct Common {
     /// Robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
     #[arg(long)]
     pub robust_scale: Option<f64>,
+    /// Also start the multi-start shifted by ± this along each axis (fraction of the target's size).
+    #[arg(long)]
+    pub multistart_offset: Option<f64>,
     /// Skip the 24-rotation multi-start (centroid alignment only).
     #[arg(long)]
     pub no_multistart: bool,
@@ -60,6 +63,9 @@ impl Common {
         };
         if let Some(a) = self.alternations {
             s.alternations = a;
+        }
+        if let Some(o) = self.multistart_offset {
+            s.multistart_offset = o;
         }
         if let Some(r) = self.refine_steps {
             s.fit.refine_steps = r;

@@ -16,7 +16,7 @@ use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::cloud::transformed_f32;
-use crate::mlp::{Mlp, BLOCK};
+use crate::mlp::{with_workspace, Mlp, BLOCK};
 use crate::se3::exp_se3;
 
 /// Settings of the Levenberg–Marquardt solver.
@@ -93,9 +93,8 @@ pub fn linearize(
 ) -> Linearization {
     let parts: Vec<Linearization> = source
         .par_chunks(BLOCK)
-        .map_init(
-            || mlp.workspace(),
-            |ws, chunk| {
+        .map(|chunk| {
+            with_workspace(|ws| {
                 let xs = transformed_f32(chunk, pose);
                 mlp.forward_block(&xs, true, ws);
                 let mut h = Matrix6::zeros();
@@ -114,8 +113,8 @@ pub fn linearize(
                     cost += rho;
                 }
                 Linearization { h, g, cost }
-            },
-        )
+            })
+        })
         .collect();
     parts.into_iter().fold(
         Linearization {
@@ -135,16 +134,15 @@ pub fn linearize(
 pub fn cost(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kernel: Kernel) -> f64 {
     let parts: Vec<f64> = source
         .par_chunks(BLOCK)
-        .map_init(
-            || mlp.workspace(),
-            |ws, chunk| {
+        .map(|chunk| {
+            with_workspace(|ws| {
                 let xs = transformed_f32(chunk, pose);
                 mlp.forward_block(&xs, false, ws);
                 (0..xs.len())
                     .map(|j| kernel.rho_weight(ws.value(j) as f64).0)
                     .sum::<f64>()
-            },
-        )
+            })
+        })
         .collect();
     parts.into_iter().sum()
 }

@@ -54,6 +54,17 @@ struct Layer {
     b: usize,
 }
 
+thread_local! {
+    static WORKSPACE: std::cell::RefCell<Workspace> = std::cell::RefCell::new(Workspace::default());
+}
+
+/// Runs `f` with this thread's scratch [`Workspace`], so short parallel evaluations (LM steps,
+/// multi-start candidates) allocate nothing. `f` must not start parallel work itself: a task
+/// stolen while it waits could ask for the same workspace.
+pub fn with_workspace<R>(f: impl FnOnce(&mut Workspace) -> R) -> R {
+    WORKSPACE.with(|w| f(&mut w.borrow_mut()))
+}
+
 /// Points per block in the parallel loops: large enough for efficient products,
 /// small enough that a block's activations stay in cache.
 pub const BLOCK: usize = 256;
@@ -513,9 +524,8 @@ impl Mlp {
     pub fn eval(&self, points: &[[f32; 3]], gradients: bool) -> (Vec<f32>, Vec<[f32; 3]>) {
         let parts: Vec<(Vec<f32>, Vec<[f32; 3]>)> = points
             .par_chunks(BLOCK)
-            .map_init(
-                || self.workspace(),
-                |ws, chunk| {
+            .map(|chunk| {
+                with_workspace(|ws| {
                     self.forward_block(chunk, gradients, ws);
                     let v = (0..chunk.len()).map(|j| ws.value(j)).collect();
                     let g = if gradients {
@@ -524,8 +534,8 @@ impl Mlp {
                         Vec::new()
                     };
                     (v, g)
-                },
-            )
+                })
+            })
             .collect();
         let mut values = Vec::with_capacity(points.len());
         let mut grads = Vec::with_capacity(if gradients { points.len() } else { 0 });

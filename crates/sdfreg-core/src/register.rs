@@ -58,7 +58,10 @@ pub struct RegisterSettings {
     pub multistart: bool,
     /// LM steps per multi-start candidate. Default 5.
     pub multistart_lm_steps: usize,
-    /// Source points used by each multi-start candidate at most. Default 256.
+    /// Multi-start translations: besides the centroid alignment, starts shifted by this much
+    /// along ±x, ±y, ±z (normalised units); 0 disables. Default 0.1.
+    pub multistart_offset: f64,
+    /// Source points used by each multi-start candidate at most. Default 128.
     pub multistart_points: usize,
     /// Candidates kept after the first multi-start round, for further refinement. Default 4.
     pub multistart_keep: usize,
@@ -100,7 +103,8 @@ impl Default for RegisterSettings {
             final_lm_steps: 10,
             multistart: true,
             multistart_lm_steps: 5,
-            multistart_points: 256,
+            multistart_offset: 0.1,
+            multistart_points: 128,
             hypotheses: 3,
             multistart_keep: 4,
             multistart_refine_steps: 15,
@@ -382,15 +386,32 @@ fn run(
                 let score = nn_score(tree, &transformed_f32(&ms_source, &lm.pose), tau2);
                 (score, lm.pose)
             };
-            let mut candidates: Vec<(f64, Isometry3<f64>)> = rotations
-                .par_iter()
-                .map(|r| {
-                    let q = UnitQuaternion::from_rotation_matrix(r);
-                    refine(
-                        Isometry3::from_parts(Translation3::from(c_tgt - r * c_src), q),
-                        s.multistart_lm_steps,
-                    )
+            // Starts: each rotation about the centroids, plus (when `multistart_offset` > 0) the
+            // same with the translation shifted by ±offset along each axis, because a partial
+            // source's centroid is biased. The identity start comes first.
+            let o = s.multistart_offset;
+            let mut offsets = vec![Vector3::zeros()];
+            if o > 0.0 {
+                for k in 0..3 {
+                    for sign in [1.0, -1.0] {
+                        let mut v = Vector3::zeros();
+                        v[k] = sign * o;
+                        offsets.push(v);
+                    }
+                }
+            }
+            let starts: Vec<Isometry3<f64>> = offsets
+                .iter()
+                .flat_map(|d| {
+                    rotations.iter().map(move |r| {
+                        let q = UnitQuaternion::from_rotation_matrix(r);
+                        Isometry3::from_parts(Translation3::from(c_tgt - r * c_src + d), q)
+                    })
                 })
+                .collect();
+            let mut candidates: Vec<(f64, Isometry3<f64>)> = starts
+                .par_iter()
+                .map(|p| refine(*p, s.multistart_lm_steps))
                 .collect();
             // The identity start (plain centroid alignment) is always a finalist: with the
             // least-motion tie-break it wins whenever nothing fits clearly better. The others
