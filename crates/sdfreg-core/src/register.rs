@@ -4,7 +4,9 @@
 //! 1. validate both clouds; normalise with the target's bounding-box centre and largest side;
 //! 2. pre-fit Φ on the target ([`FitSettings::prefit_steps`]);
 //! 3. initial pose: the caller's guess, or centroid alignment plus a multi-start over the 24
-//!    rotations of the cube group, each refined by a few LM steps on the frozen Φ and scored on
+//!    rotations of the cube group, each also with the translation shifted by
+//!    ±[`RegisterSettings::multistart_offset`] along each axis, each start refined by a few LM
+//!    steps on the frozen Φ and scored on
 //!    the target points (truncated nearest-neighbour distance); near-ties go to the least
 //!    rotation; up to [`RegisterSettings::hypotheses`] distinct poses go on;
 //! 4. `alternations` times: add the moved source(s) to Φ's queries (eq. 18-1), refine Φ, take
