@@ -360,7 +360,8 @@ impl SdfFitter {
                         let (d2, l, dp, dg) =
                             query_loss(&q.x, &q.t, q.w, we, ws.value(j), &ws.gradient(j));
                         total += l as f64;
-                        if q.w == wq {
+                        // The perturbation queries fill the first `nq` places of the batch.
+                        if i * BLOCK + j < nq {
                             proj += d2 as f64 * wq as f64;
                         }
                         dphi[j] = dp;
@@ -444,6 +445,33 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn projection_loss_counts_only_perturbation_queries() {
+        // Equal perturbation and source batches give equal weights: the split must not rely on them.
+        let settings = FitSettings {
+            batch_queries: 512,
+            refine_batch_queries: 512,
+            batch_source: 512,
+            ..Default::default()
+        };
+        let target = sphere(512);
+        let plain = SdfFitter::new(target.clone(), &MlpSettings::default(), &settings, 4);
+        let mut with_source = plain.clone();
+        // Far from the surface, so counting them would change the sum a lot.
+        let far: Vec<[f32; 3]> = target
+            .iter()
+            .map(|p| [p[0] * 2.0, p[1] * 2.0, p[2] * 2.0])
+            .collect();
+        with_source.add_source_queries(&far);
+        let a = plain.clone().train(1, 1e-3);
+        let b = with_source.train(1, 1e-3);
+        assert_eq!(a.projection, b.projection);
+        assert!(
+            b.total > a.total,
+            "source queries must add to the total loss"
+        );
     }
 
     #[test]
