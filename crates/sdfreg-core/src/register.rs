@@ -393,7 +393,7 @@ fn run(
             // source's centroid is biased. The identity start comes first.
             let o = s.multistart_offset;
             let mut offsets = vec![Vector3::zeros()];
-            if o > 0.0 {
+            if s.multistart && o > 0.0 {
                 for k in 0..3 {
                     for sign in [1.0, -1.0] {
                         let mut v = Vector3::zeros();
