@@ -250,10 +250,15 @@ fn subsample(points: &[Point3<f64>], max: usize, rng: &mut ChaCha8Rng) -> Vec<Po
     idx.into_iter().map(|i| points[i]).collect()
 }
 
-/// Mean squared distance from `points` to their nearest target point, each truncated at
-/// `tau2` (normalised units²): how well a pose fits the target points themselves.
-fn nn_score(tree: &crate::sdf_fit::Tree, points: &[[f32; 3]], tau2: f64) -> f64 {
-    let sum: f64 = points
+/// Mean squared distance from `points` moved by `pose` to their nearest target point, each
+/// truncated at `tau2` (normalised units²): how well a pose fits the target points themselves.
+fn nn_score(
+    tree: &crate::sdf_fit::Tree,
+    points: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    tau2: f64,
+) -> f64 {
+    let sum: f64 = transformed_f32(points, pose)
         .iter()
         .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
         .sum();
@@ -353,6 +358,7 @@ fn run(
         progress(Stage::Prefit(done, s.fit.prefit_steps));
     }
 
+    let tau2 = s.multistart_truncation * s.multistart_truncation;
     // Initial pose, unit frame.
     let hypotheses: Vec<Isometry3<f64>> = match init {
         Some(t) => vec![norm.pose_to_unit(t)],
@@ -376,7 +382,6 @@ fn run(
             // coarse to separate near-symmetric poses): mean squared distance of the moved
             // points to their nearest target point, truncated at `multistart_truncation`.
             let tree = fit.tree();
-            let tau2 = s.multistart_truncation * s.multistart_truncation;
             let refine = |pose: Isometry3<f64>, steps: usize| {
                 let mut lm = Lm::new(pose, &s.lm);
                 for _ in 0..steps {
@@ -385,7 +390,7 @@ fn run(
                         break;
                     }
                 }
-                let score = nn_score(tree, &transformed_f32(&ms_source, &lm.pose), tau2);
+                let score = nn_score(tree, &ms_source, &lm.pose, tau2);
                 (score, lm.pose)
             };
             // Starts: each rotation about the centroids, plus (when `multistart_offset` > 0) the
@@ -450,7 +455,6 @@ fn run(
 
     // Coarse-to-fine (eq. 18-1). Every hypothesis's moved source joins the query set: queries
     // carry their true nearest target point, so extra ones only teach Φ more of the far field.
-    let tau2 = s.multistart_truncation * s.multistart_truncation;
     let mut lms: Vec<Lm> = hypotheses.iter().map(|p| Lm::new(*p, &s.lm)).collect();
     for k in 0..s.alternations {
         for lm in &lms {
@@ -471,24 +475,20 @@ fn run(
         if k + 1 == s.alternations / 2 && lms.len() > 1 {
             let scores: Vec<f64> = lms
                 .iter()
-                .map(|lm| nn_score(fit.tree(), &transformed_f32(&src_unit, &lm.pose), tau2))
+                .map(|lm| nn_score(fit.tree(), &src_unit, &lm.pose, tau2))
                 .collect();
             let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
-            let mut i = 0;
-            lms.retain(|_| {
-                i += 1;
-                scores[i - 1] <= best * (1.0 + s.multistart_tie)
-            });
+            lms = lms
+                .into_iter()
+                .zip(scores)
+                .filter(|(_, score)| *score <= best * (1.0 + s.multistart_tie))
+                .map(|(lm, _)| lm)
+                .collect();
         }
     }
     let scored: Vec<(f64, Isometry3<f64>)> = lms
         .iter()
-        .map(|lm| {
-            (
-                nn_score(fit.tree(), &transformed_f32(&src_unit, &lm.pose), tau2),
-                lm.pose,
-            )
-        })
+        .map(|lm| (nn_score(fit.tree(), &src_unit, &lm.pose, tau2), lm.pose))
         .collect();
     let mut lm = lms.swap_remove(least_motion(&scored, s.multistart_tie));
     progress(Stage::Final);
