@@ -10,6 +10,15 @@ fn sdfreg() -> Command {
     Command::new(env!("CARGO_BIN_EXE_sdfreg"))
 }
 
+/// `sdfreg register SRC TGT` on the pair that [`pair`] wrote into `dir`.
+fn register_cmd(dir: &Path) -> Command {
+    let mut c = sdfreg();
+    c.arg("register")
+        .arg(dir.join("src.xyz"))
+        .arg(dir.join("tgt.ply"));
+    c
+}
+
 fn write_xyz(path: &Path, pts: &[Point3<f64>]) {
     sdfreg_core::io::write_point_cloud(path, pts).unwrap();
 }
@@ -43,13 +52,7 @@ const QUICK: [&str; 4] = ["--prefit-steps", "300", "--alternations", "5"];
 fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     let dir = tempfile::tempdir().unwrap();
     let truth = pair(dir.path());
-    let out = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(dir.path().join("tgt.ply"))
-        .args(QUICK)
-        .output()
-        .unwrap();
+    let out = register_cmd(dir.path()).args(QUICK).output().unwrap();
     assert!(
         out.status.success(),
         "{}",
@@ -61,10 +64,7 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
 
     let json = dir.path().join("r.json");
     let aligned = dir.path().join("aligned.ply");
-    let out = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(dir.path().join("tgt.ply"))
+    let out = register_cmd(dir.path())
         .args(QUICK)
         .arg("-o")
         .arg(&json)
@@ -96,20 +96,14 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     assert_eq!(moved.len(), 800);
 
     // Refuses to overwrite without --force, and never over an input.
-    let again = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(dir.path().join("tgt.ply"))
+    let again = register_cmd(dir.path())
         .arg("-o")
         .arg(&json)
         .output()
         .unwrap();
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("exists; pass --force"));
-    let over_input = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(dir.path().join("tgt.ply"))
+    let over_input = register_cmd(dir.path())
         .arg("--aligned")
         .arg(dir.path().join("tgt.ply"))
         .arg("--force")
@@ -155,10 +149,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file() {
     }
     let init = dir.path().join("init.txt");
     std::fs::write(&init, "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
-    let out = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(dir.path().join("tgt.ply"))
+    let out = register_cmd(dir.path())
         .arg("--init")
         .arg(&init)
         .output()
