@@ -275,11 +275,6 @@ impl SdfFitter {
         self.steps
     }
 
-    /// Distance (unit frame) from `p` to the nearest target point.
-    pub fn nearest_distance(&self, p: &[f32; 3]) -> f32 {
-        self.tree.nearest_one::<SquaredEuclidean>(p).distance.sqrt()
-    }
-
     /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
     pub fn add_source_queries(&mut self, points: &[[f32; 3]]) {
         let new: Vec<([f32; 3], [f32; 3])> = points
