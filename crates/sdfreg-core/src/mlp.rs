@@ -139,14 +139,18 @@ fn exp_nonpositive<const FMA: bool>(x: f32) -> f32 {
     let x = x.max(-87.0);
     // Round to nearest with the 1.5·2²³ trick (no SSE4.1 `round` needed).
     const MAGIC: f32 = 12_582_912.0;
-    let n = madd::<FMA>(x, std::f32::consts::LOG2_E, MAGIC) - MAGIC;
+    let shifted = madd::<FMA>(x, std::f32::consts::LOG2_E, MAGIC);
+    let n = shifted - MAGIC;
     // Cody–Waite: ln 2 split in a part exact in f32 and a correction.
     let r = madd::<FMA>(n, -1.428_606_8e-6, madd::<FMA>(n, -0.693_145_75, x));
     let mut p = 1.0 / 720.0;
     for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0] {
         p = madd::<FMA>(p, r, c);
     }
-    f32::from_bits(((n as i32 + 127) << 23) as u32) * p
+    // n as an integer from the bits (the same binade as MAGIC, so the low bits are n): unlike
+    // `n as i32`, which saturates and runs one lane at a time, this vectorises.
+    let n_int = shifted.to_bits().wrapping_sub(MAGIC.to_bits());
+    f32::from_bits(n_int.wrapping_add(127) << 23) * p
 }
 
 /// `ln(1 + u)` for `u ∈ [0, 1]`, given `t = u / (2 + u) ≤ 1/3` (relative error < 3e-7):
