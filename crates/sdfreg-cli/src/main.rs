@@ -11,12 +11,11 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{
-    Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-};
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use sdfreg_core::io::{read_point_cloud, write_point_cloud};
 use sdfreg_core::protocol::pose_errors;
+use sdfreg_core::se3::isometry_from_matrix;
 use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Stage};
 
 use args::{Cli, Command, DemoArgs, RegisterArgs};
@@ -132,21 +131,12 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
             0.0
         }
     });
-    let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into();
-    if !m.iter().all(|v| v.is_finite())
-        || (r.transpose() * r - Matrix3::identity()).amax() > 1e-3
-        || (r.determinant() - 1.0).abs() > 1e-3
-    {
-        bail!(
-            "{}: the matrix is not a rigid transform (its 3×3 block must be a rotation)",
+    isometry_from_matrix(&m).with_context(|| {
+        format!(
+            "{}: the matrix is not a rigid transform (its 3×3 block must be a rotation, its last row 0 0 0 1)",
             path.display()
-        );
-    }
-    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
-    Ok(Isometry3::from_parts(
-        Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
-        rot,
-    ))
+        )
+    })
 }
 
 /// The 4×4 as four lines of four numbers.

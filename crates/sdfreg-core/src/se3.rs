@@ -7,9 +7,36 @@
 //! registration). This is the paper's eq. 13.
 //!
 //! Entry points: [`hat`], [`vee`], [`exp_so3`], [`log_so3`], [`exp_se3`], [`log_se3`],
-//! [`rotation_angle`] (geodesic distance between rotations).
+//! [`rotation_angle`] (geodesic distance between rotations), [`isometry_from_matrix`] (a user's
+//! 4×4 matrix checked to be rigid).
 
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6,
+};
+
+/// How far a user's 3×3 block may be from a rotation (`|RᵀR − I|` entries, `|det R − 1|`), and
+/// the last row from `[0 0 0 1]`, for [`isometry_from_matrix`].
+pub const RIGID_TOLERANCE: f64 = 1e-3;
+
+/// The rigid motion of a homogeneous 4×4 matrix `[R t; 0 1]`, or `None` when an entry is not
+/// finite, `R` is not a rotation within [`RIGID_TOLERANCE`] or the last row is not `[0 0 0 1]`.
+/// `R` is re-orthonormalised (the nearest rotation), so values printed with few digits work.
+pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Option<Isometry3<f64>> {
+    let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into();
+    let last = [m[(3, 0)], m[(3, 1)], m[(3, 2)], m[(3, 3)] - 1.0];
+    if !m.iter().all(|v| v.is_finite())
+        || (r.transpose() * r - Matrix3::identity()).amax() > RIGID_TOLERANCE
+        || (r.determinant() - 1.0).abs() > RIGID_TOLERANCE
+        || last.iter().any(|v| v.abs() > RIGID_TOLERANCE)
+    {
+        return None;
+    }
+    let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+    Some(Isometry3::from_parts(
+        Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+        rot,
+    ))
+}
 
 /// Below this angle (radians) the maps use Taylor expansions instead of the closed forms.
 const SMALL_ANGLE: f64 = 1e-5;
@@ -231,6 +258,33 @@ mod tests {
             sum += term;
         }
         assert!((exp_se3(&xi).to_homogeneous() - sum).norm() < 1e-12);
+    }
+
+    #[test]
+    fn matrices_are_accepted_only_when_rigid() {
+        let t = Isometry3::from_parts(
+            Translation3::new(1.0, -2.0, 3e6),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.2, 2.0)),
+        );
+        let m = t.to_homogeneous();
+        let back = isometry_from_matrix(&m).unwrap();
+        assert!((back.to_homogeneous() - m).amax() < 1e-9);
+        // Printed with 4 decimals: still accepted, and re-orthonormalised.
+        let rounded = m.map(|v| (v * 1e4).round() / 1e4);
+        let r = isometry_from_matrix(&rounded).unwrap().rotation;
+        assert!((r.to_rotation_matrix().matrix().determinant() - 1.0).abs() < 1e-12);
+        assert!(rotation_angle(&r.to_rotation_matrix(), &t.rotation.to_rotation_matrix()) < 1e-4);
+        let mut scaled = m;
+        scaled.fixed_view_mut::<3, 3>(0, 0).scale_mut(1.1);
+        let mut reflected = m;
+        reflected.column_mut(0).neg_mut();
+        let mut projective = m;
+        projective[(3, 0)] = 0.5;
+        let mut nan = m;
+        nan[(1, 3)] = f64::NAN;
+        for bad in [scaled, reflected, projective, nan] {
+            assert!(isometry_from_matrix(&bad).is_none(), "{bad}");
+        }
     }
 
     #[test]
