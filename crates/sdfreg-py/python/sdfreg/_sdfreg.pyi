@@ -1,0 +1,168 @@
+"""Native part of sdfreg (Rust, pyo3). Import from ``sdfreg``, not from here."""
+
+import os
+from typing import Dict, Optional, Union, final
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+__all__ = [
+    "Registration",
+    "__version__",
+    "_core_defaults",
+    "read_point_cloud",
+    "register",
+    "write_point_cloud",
+]
+
+_PathLike = Union[str, "os.PathLike[str]"]
+
+@final
+class Registration:
+    """The outcome of :func:`register`. Read-only."""
+
+    @property
+    def transformation(self) -> npt.NDArray[np.float64]:
+        """4×4 array ``[R t; 0 1]`` mapping source coordinates into the target frame:
+        ``p_target = R @ p_source + t``, in the clouds' units."""
+    @property
+    def converged(self) -> bool:
+        """Whether the final Levenberg–Marquardt steps converged (see ``stop_reason``)."""
+    @property
+    def stop_reason(self) -> str:
+        """``"small_step"``, ``"no_decrease"`` or ``"max_iterations"``."""
+    @property
+    def fitness(self) -> float:
+        """Fraction of source points within ``inlier_distance`` of a target point."""
+    @property
+    def inlier_rmse(self) -> float:
+        """RMSE of the inliers' nearest-neighbour distances, in the clouds' units."""
+    @property
+    def inlier_distance(self) -> float:
+        """The inlier distance used, in the clouds' units."""
+    @property
+    def iterations(self) -> int:
+        """Levenberg–Marquardt iterations in total (the multi-start excluded)."""
+    @property
+    def cost(self) -> float:
+        """Mean squared SDF value of the moved source points, in units squared."""
+    @property
+    def information(self) -> npt.NDArray[np.float64]:
+        """6×6 ``JᵀJ`` at the result, in the target frame, twist order ``[ω (rad); v (units)]``
+        about the target origin: the information matrix of a left perturbation of
+        ``transformation``. Small eigenvalues mark poorly constrained directions."""
+    @property
+    def time_s(self) -> float:
+        """Wall time of the registration, seconds."""
+
+def register(
+    source: npt.ArrayLike,
+    target: npt.ArrayLike,
+    *,
+    init: Optional[npt.ArrayLike] = None,
+    seed: int = 0,
+    threads: int = 0,
+    alternations: int = 10,
+    lm_steps_per_alternation: int = 2,
+    final_lm_steps: int = 10,
+    multistart: bool = True,
+    multistart_lm_steps: int = 5,
+    multistart_offset: float = 0.1,
+    multistart_points: int = 128,
+    multistart_keep: int = 4,
+    multistart_refine_steps: int = 15,
+    multistart_truncation: float = 0.05,
+    multistart_tie: float = 0.25,
+    hypotheses: int = 3,
+    max_source_points: int = 4096,
+    max_target_points: int = 100000,
+    robust_scale: Optional[float] = None,
+    inlier_distance: float = 0.02,
+    width: int = 32,
+    depth: int = 3,
+    beta: float = 100.0,
+    init_radius: float = 0.3,
+    prefit_steps: int = 500,
+    prefit_lr: float = 0.002,
+    refine_steps: int = 40,
+    refine_lr: float = 0.001,
+    batch_queries: int = 1024,
+    refine_batch_queries: int = 512,
+    batch_source: int = 512,
+    batch_surface: int = 512,
+    query_pool: int = 16384,
+    sigma_neighbour: int = 50,
+    sigma_sample: int = 1024,
+    lambda_surface: float = 0.1,
+    lambda_eikonal: float = 0.001,
+    max_source_queries: int = 16384,
+    initial_lambda: float = 0.01,
+    lambda_decrease: float = 3.0,
+    lambda_increase: float = 4.0,
+    max_tries: int = 6,
+    rotation_tolerance: float = 1e-5,
+    translation_tolerance: float = 1e-5,
+) -> Registration:
+    """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
+    cloud onto the target's surface, without point correspondences.
+
+    The target is represented by a small neural signed distance function Φ, fitted to it; the
+    source is moved by Levenberg–Marquardt so that ``Σ Φ(R p + t)²`` is minimal, alternating
+    with refinements of Φ near the moving source. Without ``init``, the centroids are aligned
+    and the 24 rotations of the cube group (and small shifts) are tried, so any initial
+    rotation works.
+
+    Args:
+        source: (N, 3) points to move; float32 or float64 array in any memory layout, or
+            anything ``numpy.asarray`` turns into one (e.g. ``np.asarray(pcd.points)``).
+        target: (M, 3) points that stay fixed, same units as ``source``.
+        init: Optional 4×4 rigid initial guess mapping source into target; replaces the
+            multi-start.
+        seed: Seed of every random choice; equal seeds give identical results.
+        threads: Worker threads; 0 = one per core. The result does not depend on it.
+
+    The other keyword arguments are the engine's settings, with its defaults; lengths are
+    fractions of the target's largest bounding-box side. ``alternations``,
+    ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
+    ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
+    ``max_target_points``: larger clouds are subsampled (seeded). ``robust_scale``:
+    Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
+    and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
+    ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
+    ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
+    ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
+
+    Returns:
+        The :class:`Registration`.
+
+    Raises:
+        ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
+            fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
+            setting is out of range.
+    """
+
+def read_point_cloud(path: _PathLike) -> npt.NDArray[np.float64]:
+    """Reads a point cloud as an (N, 3) float64 array.
+
+    Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
+    element's x, y, z), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+
+    Raises:
+        OSError: the file cannot be read (``FileNotFoundError``, ``PermissionError``, …), its
+            format is unknown, or its contents are malformed; the message names the file and,
+            for text, the line.
+    """
+
+def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
+    """Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
+    float64; text formats: one ``x y z`` line per point, full precision). An existing file is
+    replaced.
+
+    Raises:
+        ValueError: ``points`` is not an (N, 3) float array or has a non-finite coordinate.
+        OSError: the file cannot be written or the extension is unknown.
+    """
+
+def _core_defaults() -> Dict[str, Union[int, float, bool, None]]:
+    """The engine's defaults of the settings :func:`register` takes (for tests)."""

@@ -1,0 +1,165 @@
+//! Python bindings of sdfreg: `sdfreg.register`, `sdfreg.read_point_cloud`,
+//! `sdfreg.write_point_cloud` and the `sdfreg.Registration` result. They only convert and
+//! forward to `sdfreg-core`: arguments are copied into owned Rust values, then the work runs with
+//! the GIL released (`Python::detach`), so Python threads can register in parallel.
+//!
+//! Fork safety: the core runs every call in its own rayon pool, created for that call, and
+//! never touches rayon's global pool, so a forked child (multiprocessing) starts no work on
+//! threads that only its parent had.
+//!
+//! Stubs and docstrings for Python users: `python/sdfreg/_sdfreg.pyi`.
+
+mod convert;
+mod error;
+mod registration;
+
+use std::path::PathBuf;
+
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use sdfreg_core::RegisterSettings;
+
+use registration::PyRegistration;
+
+/// A Python keyword argument converted to the core's type of that setting.
+trait IntoSetting<T> {
+    fn into_setting(self, name: &str) -> PyResult<T>;
+}
+
+impl IntoSetting<usize> for i64 {
+    fn into_setting(self, name: &str) -> PyResult<usize> {
+        usize::try_from(self)
+            .map_err(|_| error::argument(name, format!("must be a count ≥ 0, got {self}")))
+    }
+}
+
+impl IntoSetting<u64> for i64 {
+    fn into_setting(self, name: &str) -> PyResult<u64> {
+        u64::try_from(self)
+            .map_err(|_| error::argument(name, format!("must be an integer ≥ 0, got {self}")))
+    }
+}
+
+impl IntoSetting<f32> for f64 {
+    fn into_setting(self, _: &str) -> PyResult<f32> {
+        Ok(self as f32)
+    }
+}
+
+impl<T> IntoSetting<T> for T {
+    fn into_setting(self, _: &str) -> PyResult<T> {
+        Ok(self)
+    }
+}
+
+/// Defines `register` with one keyword argument per core setting: `name: python type = default
+/// => field path in RegisterSettings`. The defaults are those of `RegisterSettings::default()`
+/// (the Python tests check that they agree).
+macro_rules! register_function {
+    ($($name:ident: $ty:ty = $default:tt => $($path:ident).+),* $(,)?) => {
+        /// Registers `source` onto `target`; see `python/sdfreg/_sdfreg.pyi`.
+        #[pyfunction]
+        #[pyo3(signature = (source, target, *, init = None, $($name = $default),*))]
+        #[allow(clippy::too_many_arguments)]
+        fn register(
+            py: Python<'_>,
+            source: &Bound<'_, PyAny>,
+            target: &Bound<'_, PyAny>,
+            init: Option<&Bound<'_, PyAny>>,
+            $($name: $ty),*
+        ) -> PyResult<PyRegistration> {
+            let source = convert::points(source, "source")?;
+            let target = convert::points(target, "target")?;
+            let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
+            let mut settings = RegisterSettings::default();
+            $(settings.$($path).+ = $name.into_setting(stringify!($name))?;)*
+            let result = py
+                .detach(|| sdfreg_core::register(&source, &target, init.as_ref(), &settings))
+                .map_err(error::registration)?;
+            Ok(PyRegistration(result))
+        }
+
+        /// The core's defaults of the settings `register` takes, as a dict (for tests).
+        #[pyfunction]
+        fn _core_defaults(py: Python<'_>) -> PyResult<Bound<'_, pyo3::types::PyDict>> {
+            let d = RegisterSettings::default();
+            let out = pyo3::types::PyDict::new(py);
+            $(out.set_item(stringify!($name), d.$($path).+)?;)*
+            Ok(out)
+        }
+    };
+}
+
+register_function! {
+    seed: i64 = 0 => seed,
+    threads: i64 = 0 => threads,
+    alternations: i64 = 10 => alternations,
+    lm_steps_per_alternation: i64 = 2 => lm_steps_per_alternation,
+    final_lm_steps: i64 = 10 => final_lm_steps,
+    multistart: bool = true => multistart,
+    multistart_lm_steps: i64 = 5 => multistart_lm_steps,
+    multistart_offset: f64 = 0.1 => multistart_offset,
+    multistart_points: i64 = 128 => multistart_points,
+    multistart_keep: i64 = 4 => multistart_keep,
+    multistart_refine_steps: i64 = 15 => multistart_refine_steps,
+    multistart_truncation: f64 = 0.05 => multistart_truncation,
+    multistart_tie: f64 = 0.25 => multistart_tie,
+    hypotheses: i64 = 3 => hypotheses,
+    max_source_points: i64 = 4096 => max_source_points,
+    max_target_points: i64 = 100000 => max_target_points,
+    robust_scale: Option<f64> = None => robust_scale,
+    inlier_distance: f64 = 0.02 => inlier_distance,
+    width: i64 = 32 => mlp.width,
+    depth: i64 = 3 => mlp.depth,
+    beta: f64 = 100.0 => mlp.beta,
+    init_radius: f64 = 0.3 => mlp.init_radius,
+    prefit_steps: i64 = 500 => fit.prefit_steps,
+    prefit_lr: f64 = 0.002 => fit.prefit_lr,
+    refine_steps: i64 = 40 => fit.refine_steps,
+    refine_lr: f64 = 0.001 => fit.refine_lr,
+    batch_queries: i64 = 1024 => fit.batch_queries,
+    refine_batch_queries: i64 = 512 => fit.refine_batch_queries,
+    batch_source: i64 = 512 => fit.batch_source,
+    batch_surface: i64 = 512 => fit.batch_surface,
+    query_pool: i64 = 16384 => fit.query_pool,
+    sigma_neighbour: i64 = 50 => fit.sigma_neighbour,
+    sigma_sample: i64 = 1024 => fit.sigma_sample,
+    lambda_surface: f64 = 0.1 => fit.lambda_surface,
+    lambda_eikonal: f64 = 0.001 => fit.lambda_eikonal,
+    max_source_queries: i64 = 16384 => fit.max_source_queries,
+    initial_lambda: f64 = 0.01 => lm.initial_lambda,
+    lambda_decrease: f64 = 3.0 => lm.lambda_decrease,
+    lambda_increase: f64 = 4.0 => lm.lambda_increase,
+    max_tries: i64 = 6 => lm.max_tries,
+    rotation_tolerance: f64 = 1e-5 => lm.rotation_tolerance,
+    translation_tolerance: f64 = 1e-5 => lm.translation_tolerance,
+}
+
+/// Reads a point cloud (.ply, .xyz, .txt, .csv, .pts) as an (N, 3) float64 array.
+#[pyfunction]
+fn read_point_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    let points = py
+        .detach(|| sdfreg_core::io::read_point_cloud(&path))
+        .map_err(error::io)?;
+    Ok(convert::points_to_array(py, &points))
+}
+
+/// Writes an (N, 3) array of finite points; the format follows the extension. Overwrites.
+#[pyfunction]
+fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -> PyResult<()> {
+    let points = convert::finite_points(points, "points")?;
+    py.detach(|| sdfreg_core::io::write_point_cloud(&path, &points))
+        .map_err(error::io)
+}
+
+/// The native part of the `sdfreg` package.
+#[pymodule]
+fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(register, m)?)?;
+    m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
+    m.add_class::<PyRegistration>()?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

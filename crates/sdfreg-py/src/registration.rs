@@ -1,0 +1,104 @@
+//! `sdfreg.Registration`: the result of `sdfreg.register`, read-only.
+
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use sdfreg_core::StopReason;
+
+use crate::convert;
+
+/// The outcome of a registration (see `sdfreg.register`).
+#[pyclass(frozen, module = "sdfreg", name = "Registration")]
+pub struct PyRegistration(pub sdfreg_core::Registration);
+
+fn stop_reason(r: StopReason) -> &'static str {
+    match r {
+        StopReason::SmallStep => "small_step",
+        StopReason::NoDecrease => "no_decrease",
+        _ => "max_iterations",
+    }
+}
+
+#[pymethods]
+impl PyRegistration {
+    /// 4×4 float64 array mapping source coordinates into the target frame.
+    #[getter]
+    fn transformation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        convert::matrix4(py, &self.0.matrix())
+    }
+
+    /// Whether the final Levenberg–Marquardt steps converged.
+    #[getter]
+    fn converged(&self) -> bool {
+        self.0.converged
+    }
+
+    /// Why it stopped: "small_step", "no_decrease" or "max_iterations".
+    #[getter]
+    fn stop_reason(&self) -> &'static str {
+        stop_reason(self.0.stop_reason)
+    }
+
+    /// Fraction of source points within `inlier_distance` of a target point.
+    #[getter]
+    fn fitness(&self) -> f64 {
+        self.0.fitness
+    }
+
+    /// RMSE of the inliers' nearest-neighbour distances, in the clouds' units.
+    #[getter]
+    fn inlier_rmse(&self) -> f64 {
+        self.0.inlier_rmse
+    }
+
+    /// The inlier distance used, in the clouds' units.
+    #[getter]
+    fn inlier_distance(&self) -> f64 {
+        self.0.inlier_distance
+    }
+
+    /// Levenberg–Marquardt iterations (multi-start excluded).
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.0.iterations
+    }
+
+    /// Mean squared SDF value of the moved source points, in the clouds' units squared.
+    #[getter]
+    fn cost(&self) -> f64 {
+        self.0.cost
+    }
+
+    /// 6×6 JᵀJ in the target frame, twist order [rotation (rad); translation (units)].
+    #[getter]
+    fn information<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        convert::matrix6(py, &self.0.information)
+    }
+
+    /// Wall time of the registration, seconds.
+    #[getter]
+    fn time_s(&self) -> f64 {
+        self.0.time.as_secs_f64()
+    }
+
+    fn __repr__(&self) -> String {
+        let r = &self.0;
+        let m = r.matrix();
+        let rows: Vec<String> = (0..4)
+            .map(|i| {
+                let v: Vec<String> = (0..4).map(|j| format!("{:.6}", m[(i, j)])).collect();
+                format!("[{}]", v.join(", "))
+            })
+            .collect();
+        format!(
+            "Registration(converged={}, stop_reason='{}', fitness={:.4}, inlier_rmse={:.6}, \
+             iterations={}, time_s={:.3},\n             transformation=[{}])",
+            if r.converged { "True" } else { "False" },
+            stop_reason(r.stop_reason),
+            r.fitness,
+            r.inlier_rmse,
+            r.iterations,
+            r.time.as_secs_f64(),
+            rows.join(",\n                             "),
+        )
+    }
+}

@@ -1,0 +1,48 @@
+"""Reading and writing point-cloud files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sdfreg
+from conftest import blob
+
+
+@pytest.mark.parametrize("name", ["a.ply", "a.xyz", "a.txt", "a.csv", "a.PTS"])
+def test_round_trip_is_exact(tmp_path: Path, name: str) -> None:
+    points = blob(300, np.random.default_rng(1)) * 1e3 + np.array([6e5, -4e6, 12.5])
+    sdfreg.write_point_cloud(tmp_path / name, points)
+    back = sdfreg.read_point_cloud(tmp_path / name)
+    assert back.dtype == np.float64 and back.shape == (300, 3)
+    np.testing.assert_array_equal(back, points)
+
+
+def test_paths_may_be_str_or_pathlike_and_float32_is_written(tmp_path: Path) -> None:
+    points = blob(50, np.random.default_rng(2)).astype(np.float32)
+    sdfreg.write_point_cloud(str(tmp_path / "a.ply"), points)
+    back = sdfreg.read_point_cloud(tmp_path / "a.ply")
+    np.testing.assert_array_equal(back, points.astype(np.float64))
+
+
+def test_ascii_ply_with_extra_properties_and_elements(tmp_path: Path) -> None:
+    text = (
+        "ply\nformat ascii 1.0\ncomment made by hand\nelement vertex 3\n"
+        "property uchar red\nproperty double x\nproperty float y\nproperty int z\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "255 0.5 1.25 3\n0 -1 0 0\n7 2 2 -2\n3 0 1 2\n"
+    )
+    (tmp_path / "a.ply").write_text(text)
+    np.testing.assert_array_equal(
+        sdfreg.read_point_cloud(tmp_path / "a.ply"),
+        [[0.5, 1.25, 3.0], [-1.0, 0.0, 0.0], [2.0, 2.0, -2.0]],
+    )
+
+
+def test_text_with_commas_and_extra_columns(tmp_path: Path) -> None:
+    (tmp_path / "a.csv").write_text("1,2,3,9\n4, 5, 6, 9\n")
+    np.testing.assert_array_equal(
+        sdfreg.read_point_cloud(tmp_path / "a.csv"), [[1, 2, 3], [4, 5, 6]]
+    )
