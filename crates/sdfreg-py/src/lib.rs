@@ -57,7 +57,43 @@ impl<T> IntoSetting<T> for T {
 /// (the Python tests check that they agree).
 macro_rules! register_function {
     ($($name:ident: $ty:ty = $default:tt => $($path:ident).+),* $(,)?) => {
-        /// Registers `source` onto `target`; see `python/sdfreg/_sdfreg.pyi`.
+        // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+        /// Registers ``source`` onto ``target``: finds the rigid transform that moves the source
+        /// cloud onto the target's surface, without point correspondences.
+        ///
+        /// The target is represented by a small neural signed distance function Φ, fitted to it; the
+        /// source is moved by Levenberg–Marquardt so that ``Σ Φ(R p + t)²`` is minimal, alternating
+        /// with refinements of Φ near the moving source. Without ``init``, the centroids are aligned
+        /// and the 24 rotations of the cube group (and small shifts) are tried, so any initial
+        /// rotation works.
+        ///
+        /// Args:
+        ///     source: (N, 3) points to move; float32 or float64 array in any memory layout, or
+        ///         anything ``numpy.asarray`` turns into one (e.g. ``np.asarray(pcd.points)``).
+        ///     target: (M, 3) points that stay fixed, same units as ``source``.
+        ///     init: Optional 4×4 rigid initial guess mapping source into target; replaces the
+        ///         multi-start.
+        ///     seed: Seed of every random choice; equal seeds give identical results.
+        ///     threads: Worker threads; 0 = one per core. The result does not depend on it.
+        ///
+        /// The other keyword arguments are the engine's settings, with its defaults; lengths are
+        /// fractions of the target's largest bounding-box side. ``alternations``,
+        /// ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
+        /// ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
+        /// ``max_target_points``: larger clouds are subsampled (seeded). ``robust_scale``:
+        /// Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
+        /// and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
+        /// ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
+        /// ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
+        /// ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
+        ///
+        /// Returns:
+        ///     The :class:`Registration`.
+        ///
+        /// Raises:
+        ///     ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
+        ///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
+        ///         setting is out of range.
         #[pyfunction]
         #[pyo3(signature = (source, target, *, init = None, $($name = $default),*))]
         #[allow(clippy::too_many_arguments)]
@@ -135,7 +171,16 @@ register_function! {
     translation_tolerance: f64 = 1e-5 => lm.translation_tolerance,
 }
 
-/// Reads a point cloud (.ply, .xyz, .txt, .csv, .pts) as an (N, 3) float64 array.
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Reads a point cloud as an (N, 3) float64 array.
+///
+/// Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
+/// element's x, y, z), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+///
+/// Raises:
+///     OSError: the file cannot be read (``FileNotFoundError``, ``PermissionError``, …), its
+///         format is unknown, or its contents are malformed; the message names the file and,
+///         for text, the line.
 #[pyfunction]
 fn read_point_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArray2<f64>>> {
     let points = py
@@ -144,7 +189,14 @@ fn read_point_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArray
     Ok(convert::points_to_array(py, &points))
 }
 
-/// Writes an (N, 3) array of finite points; the format follows the extension. Overwrites.
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
+/// float64; text formats: one ``x y z`` line per point, full precision). An existing file is
+/// replaced.
+///
+/// Raises:
+///     ValueError: ``points`` is not an (N, 3) float array or has a non-finite coordinate.
+///     OSError: the file cannot be written or the extension is unknown.
 #[pyfunction]
 fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -> PyResult<()> {
     let points = convert::finite_points(points, "points")?;
