@@ -116,7 +116,9 @@ pub struct EvalArgs {
     /// Folder searched recursively for .ply shapes (e.g. ../shared/data/modelnet40-half1).
     #[arg(long)]
     pub shapes: PathBuf,
-    /// clean, noise, partial, density or all.
+    /// Comma-separated protocols: clean, noise, partial, density (the paper's), anyrot (uniform
+    /// rotations), and each of the paper's with `-indep` (independently sampled source and
+    /// target, e.g. clean-indep); `paper` for the paper's four, `all` for every one.
     #[arg(long, default_value = "all")]
     pub protocol: String,
     /// Pairs per protocol (shapes are used in turn).
@@ -125,7 +127,14 @@ pub struct EvalArgs {
     /// Keep every pair's numbers in this JSON file.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Overwrite --json if it exists.
+    /// Write every pair here (PROTOCOL/NNN_SHAPE/{source.ply, target.ply, gt.txt} and
+    /// pairs.json), so other programs can run on exactly the same pairs.
+    #[arg(long)]
+    pub write_pairs: Option<PathBuf>,
+    /// Only make (and write) the pairs; register nothing.
+    #[arg(long, requires = "write_pairs")]
+    pub pairs_only: bool,
+    /// Overwrite --json or --write-pairs output if it exists.
     #[arg(long)]
     pub force: bool,
     #[command(flatten)]

@@ -182,3 +182,94 @@ fn demo_reports_a_small_error() {
         .unwrap();
     assert!(deg < 1.0, "{line}");
 }
+
+#[test]
+fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
+    let dir = tempfile::tempdir().unwrap();
+    let shapes = dir.path().join("shapes");
+    std::fs::create_dir_all(shapes.join("b")).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    write_xyz(
+        &shapes.join("a.ply"),
+        &sdfreg_core::shapes::blob(3000, &mut rng),
+    );
+    write_xyz(
+        &shapes.join("b").join("bracket.ply"),
+        &sdfreg_core::shapes::bracket(3000, &mut rng),
+    );
+    let pairs = dir.path().join("pairs");
+    let json = dir.path().join("eval.json");
+    let out = sdfreg()
+        .args([
+            "eval",
+            "--pairs",
+            "2",
+            "--protocol",
+            "clean,anyrot,partial-indep",
+        ])
+        .arg("--shapes")
+        .arg(&shapes)
+        .arg("--write-pairs")
+        .arg(&pairs)
+        .arg("--json")
+        .arg(&json)
+        .args(QUICK)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in ["| clean | 2 |", "| anyrot | 2 |", "| partial-indep | 2 |"] {
+        assert!(stdout.contains(name), "{stdout}");
+    }
+    // Every written pair: the ground truth moves the source onto the target's surface.
+    let index: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(pairs.join("pairs.json")).unwrap()).unwrap();
+    let listed = index["pairs"].as_array().unwrap();
+    assert_eq!(listed.len(), 6);
+    for p in listed {
+        let d = pairs.join(p["dir"].as_str().unwrap());
+        let gt = parse_matrix(&std::fs::read_to_string(d.join("gt.txt")).unwrap());
+        let src = sdfreg_core::io::read_point_cloud(d.join("source.ply")).unwrap();
+        let tgt = sdfreg_core::io::read_point_cloud(d.join("target.ply")).unwrap();
+        assert_eq!(src.len(), p["source_points"].as_u64().unwrap() as usize);
+        let moved = gt.transform_point(&src[0]);
+        let nearest = tgt
+            .iter()
+            .map(|q| (q - moved).norm())
+            .fold(f64::MAX, f64::min);
+        assert!(nearest < 0.05, "{} {nearest}", d.display());
+    }
+    // The scores: every pair registered well on these asymmetric shapes.
+    let eval: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for s in eval["summary"].as_array().unwrap() {
+        assert!(s["rotation_mean_deg"].as_f64().unwrap() < 2.0, "{s}");
+        assert!(s["euler_mae_deg"].as_f64().unwrap() < 2.0, "{s}");
+        assert_eq!(s["recall_5deg_005"].as_f64().unwrap(), 1.0, "{s}");
+    }
+    // Pairs are not overwritten without --force; an unknown protocol is a one-line error.
+    let again = sdfreg()
+        .args(["eval", "--pairs-only", "--shapes"])
+        .arg(&shapes)
+        .arg("--write-pairs")
+        .arg(&pairs)
+        .output()
+        .unwrap();
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("pass --force"));
+    let bad = sdfreg()
+        .args(["eval", "--protocol", "clean,wobbly", "--shapes"])
+        .arg(&shapes)
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        err.contains("unknown protocol \"wobbly\"") && err.lines().count() == 1,
+        "{err}"
+    );
+}
