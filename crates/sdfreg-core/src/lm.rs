@@ -84,6 +84,14 @@ pub struct Linearization {
     pub cost: f64,
 }
 
+/// The Jacobian row of a residual `Φ(x)` with respect to a left twist `[ω; v]` applied to the
+/// pose that produced `x`: `[x × n; n]`, where `n = ∇Φ(x)` (paper eq. 13). `x` and `n` in the
+/// frame the twist acts in.
+pub fn jacobian_row(x: &Vector3<f64>, n: &Vector3<f64>) -> Vector6<f64> {
+    let c = x.cross(n);
+    Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z)
+}
+
 /// Normal equations of the points `source` (unit frame) moved by `pose`.
 pub fn linearize(
     mlp: &Mlp,
@@ -105,8 +113,7 @@ pub fn linearize(
                     let n = ws.gradient(j);
                     let n = Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
                     let x = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
-                    let c = x.cross(&n);
-                    let jrow = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+                    let jrow = jacobian_row(&x, &n);
                     let (rho, w) = kernel.rho_weight(r);
                     h += w * jrow * jrow.transpose();
                     g += (w * r) * jrow;

@@ -23,7 +23,6 @@ use std::time::{Duration, Instant};
 use kiddo::SquaredEuclidean;
 use nalgebra::{
     Isometry3, Matrix3, Matrix4, Matrix6, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-    Vector6,
 };
 use rand::seq::index::sample;
 use rand::SeedableRng;
@@ -32,7 +31,7 @@ use rayon::prelude::*;
 
 use crate::cloud::{centroid, transformed_f32, validate, Normalization};
 use crate::error::{Error, Role};
-use crate::lm::{Kernel, Lm, LmSettings, StepOutcome};
+use crate::lm::{jacobian_row, Kernel, Lm, LmSettings, StepOutcome};
 use crate::mlp::MlpSettings;
 use crate::sdf_fit::{FitSettings, SdfFitter};
 
@@ -515,8 +514,7 @@ fn run(
     for ((x, g), r) in moved.iter().zip(&grads).zip(&phi) {
         let xu = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) * norm.scale + norm.centre;
         let n = Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64);
-        let c = xu.cross(&n);
-        let j = Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z);
+        let j = jacobian_row(&xu, &n);
         information += j * j.transpose();
         cost += (*r as f64 * norm.scale).powi(2);
     }
