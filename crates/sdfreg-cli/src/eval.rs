@@ -9,12 +9,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Point3;
 use rand::SeedableRng;
 use sdfreg_core::io::{read_point_cloud, write_point_cloud};
 use sdfreg_core::protocol::{euler_errors, make_pair, pose_errors, Pair, Protocol};
 
 use crate::args::EvalArgs;
+use crate::{matrix_lines, matrix_rows};
 
 fn find_shapes(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
     let entries = std::fs::read_dir(dir).with_context(|| format!("{}", dir.display()))?;
@@ -165,26 +166,13 @@ fn write_pair(dir: &Path, pair: &Pair) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
     write_point_cloud(dir.join("source.ply"), &pair.source)?;
     write_point_cloud(dir.join("target.ply"), &pair.target)?;
-    std::fs::write(dir.join("gt.txt"), matrix_text(&pair.t_target_source))
+    // Every digit, so the ground truth reads back exactly.
+    let gt = matrix_lines(&pair.t_target_source.to_homogeneous(), |v| {
+        format!("{v:.17e}")
+    });
+    std::fs::write(dir.join("gt.txt"), gt)
         .with_context(|| format!("{}", dir.join("gt.txt").display()))?;
     Ok(())
-}
-
-fn matrix_text(t: &Isometry3<f64>) -> String {
-    let m = t.to_homogeneous();
-    (0..4)
-        .map(|r| {
-            let row: Vec<String> = (0..4).map(|c| format!("{:.17e}", m[(r, c)])).collect();
-            row.join(" ") + "\n"
-        })
-        .collect()
-}
-
-fn matrix_rows(t: &Isometry3<f64>) -> Vec<[f64; 4]> {
-    let m = t.to_homogeneous();
-    (0..4)
-        .map(|r| [m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]])
-        .collect()
 }
 
 pub fn run(a: EvalArgs) -> Result<()> {
@@ -263,7 +251,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
                     "dir": rel,
                     "source_points": pair.source.len(),
                     "target_points": pair.target.len(),
-                    "t_target_source": matrix_rows(&pair.t_target_source),
+                    "t_target_source": matrix_rows(&pair.t_target_source.to_homogeneous()),
                 }));
             }
             if a.pairs_only {

@@ -11,7 +11,7 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point3, SMatrix, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use sdfreg_core::io::{read_point_cloud, write_point_cloud};
 use sdfreg_core::protocol::pose_errors;
@@ -139,17 +139,22 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
     })
 }
 
-/// The 4×4 as four lines of four numbers.
-pub fn matrix_text(m: &Matrix4<f64>) -> String {
-    (0..4)
-        .map(|r| {
-            (0..4)
-                .map(|c| format!("{:.9}", m[(r, c)]))
-                .collect::<Vec<_>>()
-                .join(" ")
-                + "\n"
-        })
+/// The 4×4 as four lines of four numbers, each written by `number`.
+pub fn matrix_lines(m: &Matrix4<f64>, number: impl Fn(f64) -> String) -> String {
+    matrix_rows(m)
+        .iter()
+        .map(|row| row.iter().map(|&v| number(v)).collect::<Vec<_>>().join(" ") + "\n")
         .collect()
+}
+
+/// The 4×4 as four lines of four numbers with 9 decimals (what `register` prints).
+pub fn matrix_text(m: &Matrix4<f64>) -> String {
+    matrix_lines(m, |v| format!("{v:.9}"))
+}
+
+/// A matrix as a list of rows (row-major nested lists in JSON).
+pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
+    (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
 }
 
 fn cmd_register(a: RegisterArgs) -> Result<()> {
@@ -170,7 +175,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 .is_some_and(|e| e.eq_ignore_ascii_case("json")) =>
         {
             let json = serde_json::json!({
-                "transformation": (0..4).map(|i| (0..4).map(|j| m[(i, j)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+                "transformation": matrix_rows(&m),
                 "converged": r.converged,
                 "stop_reason": format!("{:?}", r.stop_reason),
                 "fitness": r.fitness,
@@ -178,7 +183,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 "inlier_distance": r.inlier_distance,
                 "iterations": r.iterations,
                 "cost": r.cost,
-                "information": (0..6).map(|i| (0..6).map(|j| r.information[(i, j)]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+                "information": matrix_rows(&r.information),
                 "time_ms": r.time.as_secs_f64() * 1e3,
             });
             std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
