@@ -168,6 +168,17 @@ pub enum StopReason {
     MaxIterations,
 }
 
+impl StopReason {
+    /// Snake-case name: `small_step`, `no_decrease` or `max_iterations`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            StopReason::SmallStep => "small_step",
+            StopReason::NoDecrease => "no_decrease",
+            StopReason::MaxIterations => "max_iterations",
+        }
+    }
+}
+
 /// Progress reported while registering.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Stage {

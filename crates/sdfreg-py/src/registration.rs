@@ -2,21 +2,12 @@
 
 use numpy::PyArray2;
 use pyo3::prelude::*;
-use sdfreg_core::StopReason;
 
 use crate::convert;
 
 /// The outcome of a registration (see `sdfreg.register`).
 #[pyclass(frozen, module = "sdfreg", name = "Registration")]
 pub struct PyRegistration(pub sdfreg_core::Registration);
-
-fn stop_reason(r: StopReason) -> &'static str {
-    match r {
-        StopReason::SmallStep => "small_step",
-        StopReason::NoDecrease => "no_decrease",
-        _ => "max_iterations",
-    }
-}
 
 #[pymethods]
 impl PyRegistration {
@@ -35,7 +26,7 @@ impl PyRegistration {
     /// Why it stopped: "small_step", "no_decrease" or "max_iterations".
     #[getter]
     fn stop_reason(&self) -> &'static str {
-        stop_reason(self.0.stop_reason)
+        self.0.stop_reason.name()
     }
 
     /// Fraction of source points within `inlier_distance` of a target point.
@@ -93,7 +84,7 @@ impl PyRegistration {
             "Registration(converged={}, stop_reason='{}', fitness={:.4}, inlier_rmse={:.6}, \
              iterations={}, time_s={:.3},\n             transformation=[{}])",
             if r.converged { "True" } else { "False" },
-            stop_reason(r.stop_reason),
+            r.stop_reason.name(),
             r.fitness,
             r.inlier_rmse,
             r.iterations,
