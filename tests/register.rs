@@ -4,7 +4,7 @@ use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sdfreg_core::protocol::pose_errors;
-use sdfreg_core::{register, shapes, Error, Role};
+use sdfreg_core::{register, shapes, Error, MotionKind, Role};
 
 use crate::common::{motion, moved, quick};
 
@@ -28,6 +28,48 @@ fn recovers_a_40_degree_motion_of_a_blob() {
     // JᵀJ is symmetric positive definite for a generic shape.
     assert!((r.information - r.information.transpose()).amax() < 1e-9 * r.information.amax());
     assert!(r.information.symmetric_eigenvalues().min() > 0.0);
+    assert!(
+        !r.degeneracy.is_degenerate(),
+        "{:?}",
+        r.degeneracy.relative_eigenvalues
+    );
+}
+
+/// A vase: a surface of revolution about `axis` (radius varying along it), so its spin about
+/// the axis is the one motion the points cannot determine.
+fn vase(n: usize, seed: u64) -> Vec<Point3<f64>> {
+    use rand::Rng;
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let h: f64 = rng.random_range(-0.5..0.5);
+            let t: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+            let r = 0.25 + 0.1 * (4.0 * h).sin() + 0.05 * h;
+            Point3::new(r * t.cos(), h, r * t.sin())
+        })
+        .collect()
+}
+
+#[test]
+fn a_surface_of_revolution_reports_its_free_spin() {
+    let target = vase(1500, 3);
+    let m = motion(30.0, [0.1, 0.2, -0.1]);
+    let r = register(&moved(&target, &m), &target, None, &quick()).unwrap();
+    let free = &r.degeneracy.free;
+    assert_eq!(free.len(), 1, "{:?}", r.degeneracy.relative_eigenvalues);
+    assert_eq!(free[0].kind, MotionKind::Rotation, "{}", free[0]);
+    // The vase's axis is the target's y axis, through the origin.
+    assert!(free[0].axis.y.abs() > 0.999, "{}", free[0]);
+    assert!(free[0].point.x.hypot(free[0].point.z) < 0.01, "{}", free[0]);
+    // Everything else is determined: the error left is a spin about that axis.
+    let (_, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    let residual = r.t_target_source.rotation * m.rotation;
+    let tilt = (residual * nalgebra::Vector3::y()).angle(&nalgebra::Vector3::y());
+    assert!(
+        tilt.to_degrees() < 1.0 && tr < 0.01,
+        "axis tilted by {}°, translation error {tr}",
+        tilt.to_degrees()
+    );
 }
 
 #[test]

@@ -70,6 +70,8 @@ struct PairResult {
     converged: bool,
     fitness: f64,
     iterations: usize,
+    /// The motions sdfreg reported as free (the data do not determine them), described.
+    free_motions: Vec<String>,
     time_s: f64,
 }
 
@@ -94,6 +96,10 @@ struct Summary {
     translation_axis_rmse: f64,
     recall_5deg_005: f64,
     recall_1deg_001: f64,
+    /// Pairs whose result reports a free motion (see `sdfreg_core::degeneracy`).
+    flagged: usize,
+    /// Rotation error mean over the pairs not flagged, degrees.
+    rotation_mean_unflagged_deg: f64,
     median_time_s: f64,
 }
 
@@ -134,6 +140,11 @@ fn summarise(protocol: &Protocol, results: &[PairResult]) -> Summary {
         .collect();
     let abs = |v: &[f64]| v.iter().map(|x| x.abs()).collect::<Vec<_>>();
     let time: Vec<f64> = results.iter().map(|r| r.time_s).collect();
+    let unflagged: Vec<f64> = results
+        .iter()
+        .filter(|r| r.free_motions.is_empty())
+        .map(|r| r.rotation_error_deg)
+        .collect();
     let under = |r: f64, t: f64| {
         results
             .iter()
@@ -156,6 +167,8 @@ fn summarise(protocol: &Protocol, results: &[PairResult]) -> Summary {
         translation_axis_rmse: rms(&t_axes),
         recall_5deg_005: under(5.0, 0.05),
         recall_1deg_001: under(1.0, 0.01),
+        flagged: results.len() - unflagged.len(),
+        rotation_mean_unflagged_deg: mean(&unflagged),
         median_time_s: median(&time),
     }
 }
@@ -275,6 +288,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 converged: r.converged,
                 fitness: r.fitness,
                 iterations: r.iterations,
+                free_motions: r.degeneracy.free.iter().map(|f| f.to_string()).collect(),
                 time_s: r.time.as_secs_f64(),
             });
             bar.inc(1);
@@ -307,6 +321,21 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 "  failure: pair {} ({}) rotation error {:.1}°, translation error {:.3}",
                 r.index, r.shape, r.rotation_error_deg, r.translation_error
             );
+        }
+        if s.flagged > 0 {
+            println!(
+                "  {} of {} pairs flagged with a free motion; rotation error mean without them {:.3}°",
+                s.flagged, s.pairs, s.rotation_mean_unflagged_deg
+            );
+            for r in results.iter().filter(|r| !r.free_motions.is_empty()) {
+                println!(
+                    "  flagged: pair {} ({}) rotation error {:.2}°: {}",
+                    r.index,
+                    r.shape,
+                    r.rotation_error_deg,
+                    r.free_motions.join("; ")
+                );
+            }
         }
         summaries.push(s);
         all.extend(results);

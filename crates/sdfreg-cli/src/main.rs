@@ -16,7 +16,7 @@ use rand::SeedableRng;
 use sdfreg_core::io::{read_point_cloud, write_point_cloud};
 use sdfreg_core::protocol::pose_errors;
 use sdfreg_core::se3::isometry_from_matrix;
-use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Stage};
+use sdfreg_core::{register_with_progress, Degeneracy, RegisterSettings, Registration, Stage};
 
 use args::{Cli, Command, DemoArgs, RegisterArgs};
 
@@ -152,6 +152,21 @@ pub fn matrix_text(m: &Matrix4<f64>) -> String {
     matrix_lines(m, |v| format!("{v:.9}"))
 }
 
+/// The free motions as JSON objects: `kind`, `axis`, `point`, `relative_eigenvalue`.
+pub fn free_motions_json(d: &Degeneracy) -> serde_json::Value {
+    d.free
+        .iter()
+        .map(|f| {
+            serde_json::json!({
+                "kind": f.kind.name(),
+                "axis": [f.axis.x, f.axis.y, f.axis.z],
+                "point": [f.point.x, f.point.y, f.point.z],
+                "relative_eigenvalue": f.relative_eigenvalue,
+            })
+        })
+        .collect()
+}
+
 /// A matrix as a list of rows (row-major nested lists in JSON).
 pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
     (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
@@ -184,6 +199,8 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 "iterations": r.iterations,
                 "cost": r.cost,
                 "information": matrix_rows(&r.information),
+                "constraint_eigenvalues": r.degeneracy.relative_eigenvalues,
+                "free_motions": free_motions_json(&r.degeneracy),
                 "time_ms": r.time.as_secs_f64() * 1e3,
             });
             std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
@@ -197,6 +214,11 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     if let Some(path) = &a.aligned {
         let moved: Vec<Point3<f64>> = source.iter().map(|p| r.t_target_source * p).collect();
         write_point_cloud(path, &moved)?;
+    }
+    for f in &r.degeneracy.free {
+        eprintln!(
+            "sdfreg: warning: the clouds do not determine the {f}; the pose along it is arbitrary"
+        );
     }
     eprintln!(
         "sdfreg: {} after {} LM iterations ({:?}), fitness {:.3}, inlier RMSE {:.3e}, {:.0} ms",

@@ -92,6 +92,11 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     }
     let rows: Vec<Vec<f64>> = serde_json::from_value(v["transformation"].clone()).unwrap();
     assert!((rows[0][3] - truth.translation.vector.x).abs() < 0.01);
+    // A blob constrains every motion: six constraint eigenvalues, the largest 1, none free.
+    let ev: Vec<f64> = serde_json::from_value(v["constraint_eigenvalues"].clone()).unwrap();
+    assert!(ev.len() == 6 && ev[5] == 1.0 && ev[0] > 0.002, "{ev:?}");
+    assert_eq!(v["free_motions"], serde_json::json!([]));
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
     let moved = sdfreg_core::io::read_point_cloud(&aligned).unwrap();
     assert_eq!(moved.len(), 800);
 

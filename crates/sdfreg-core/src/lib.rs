@@ -17,11 +17,12 @@
 //!
 //! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
 //! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`se3`]
-//! (exp/log maps), [`cloud`] (normalisation), [`io`] (PLY/XYZ), [`protocol`] (the paper's
+//! (exp/log maps), [`cloud`] (normalisation), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
 //! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
 #![warn(missing_docs)]
 
 pub mod cloud;
+pub mod degeneracy;
 pub mod error;
 pub mod io;
 pub mod lm;
@@ -32,6 +33,7 @@ pub mod sdf_fit;
 pub mod se3;
 pub mod shapes;
 
+pub use degeneracy::{Degeneracy, FreeMotion, MotionKind};
 pub use error::{Error, IoError, Role};
 pub use lm::{Kernel, LmSettings};
 pub use mlp::MlpSettings;

@@ -13,7 +13,8 @@
 //!    `lm_steps_per_alternation` LM steps per hypothesis; halfway, hypotheses that fit clearly
 //!    worse are dropped, and at the end the best-fitting one is kept;
 //! 5. final LM steps on the frozen Φ until converged;
-//! 6. map the pose back to the user's frame and measure fitness, inlier RMSE and JᵀJ there.
+//! 6. map the pose back to the user's frame and measure fitness, inlier RMSE, JᵀJ and the
+//!    motions the data leave free ([`crate::degeneracy`]) there.
 //!
 //! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
 //! `p_target = R p_source + t`, in the units of the inputs.
@@ -30,6 +31,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::cloud::{centroid, transformed_f32, validate, Normalization};
+use crate::degeneracy::{Degeneracy, FREE_MOTION_RATIO};
 use crate::error::{Error, Role};
 use crate::lm::{jacobian_row, Kernel, Lm, LmSettings, StepOutcome};
 use crate::mlp::MlpSettings;
@@ -78,6 +80,10 @@ pub struct RegisterSettings {
     /// identity start and the best-scoring start, when distinct); the best-fitting one wins.
     /// Default 3.
     pub hypotheses: usize,
+    /// A motion whose constraint eigenvalue is below this fraction of the largest is reported as
+    /// free in [`Registration::degeneracy`] (see [`crate::degeneracy`]). Default
+    /// [`FREE_MOTION_RATIO`] (2·10⁻³).
+    pub free_motion_ratio: f64,
     /// Source points used by the LM at most; more are subsampled (seeded). Default 4096.
     pub max_source_points: usize,
     /// Target points used by the fit at most; more are subsampled (seeded). Default 100000.
@@ -111,6 +117,7 @@ impl Default for RegisterSettings {
             multistart_refine_steps: 15,
             multistart_truncation: 0.05,
             multistart_tie: 0.25,
+            free_motion_ratio: FREE_MOTION_RATIO,
             max_source_points: 4096,
             max_target_points: 100_000,
             robust_scale: None,
@@ -143,6 +150,9 @@ impl RegisterSettings {
         }
         if self.max_source_points < MIN_POINTS || self.max_target_points < MIN_POINTS {
             return bad("max_*_points", "must be at least 10");
+        }
+        if !(0.0..1.0).contains(&self.free_motion_ratio) {
+            return bad("free_motion_ratio", "must be in [0, 1)");
         }
         if self.inlier_distance.is_nan() || self.inlier_distance <= 0.0 {
             return bad("inlier_distance", "must be positive");
@@ -214,6 +224,10 @@ pub struct Registration {
     /// `JᵀJ` (6×6) at the result in the target frame, twist `[ω (rad); v (user units)]` about the
     /// target origin: the information matrix of a left perturbation of `t_target_source`.
     pub information: Matrix6<f64>,
+    /// Which motions the data leave (nearly) free — e.g. the spin of a surface of revolution
+    /// about its axis. When [`Degeneracy::is_degenerate`], the pose along those motions is
+    /// arbitrary. Points in the target frame, user units.
+    pub degeneracy: Degeneracy,
     /// Wall time.
     pub time: Duration,
 }
@@ -522,13 +536,18 @@ fn run(
     let (phi, grads) = fit.mlp().eval(&moved, true);
     let mut information = Matrix6::zeros();
     let mut cost = 0.0;
+    let mut moved_user = Vec::with_capacity(moved.len());
+    let mut normals = Vec::with_capacity(moved.len());
     for ((x, g), r) in moved.iter().zip(&grads).zip(&phi) {
         let xu = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) * norm.scale + norm.centre;
         let n = Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64);
         let j = jacobian_row(&xu, &n);
         information += j * j.transpose();
         cost += (*r as f64 * norm.scale).powi(2);
+        moved_user.push(Point3::from(xu));
+        normals.push(n);
     }
+    let degeneracy = Degeneracy::analyse(&moved_user, &normals, s.free_motion_ratio);
     let tree = fit.tree();
     let d2: Vec<f32> = moved
         .par_iter()
@@ -557,6 +576,7 @@ fn run(
         inlier_rmse,
         inlier_distance: s.inlier_distance * norm.scale,
         information,
+        degeneracy,
         time: start.elapsed(),
     })
 }

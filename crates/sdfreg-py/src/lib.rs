@@ -19,7 +19,7 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use sdfreg_core::RegisterSettings;
 
-use registration::PyRegistration;
+use registration::{PyFreeMotion, PyRegistration};
 
 /// A Python keyword argument converted to the core's type of that setting.
 trait IntoSetting<T> {
@@ -80,7 +80,8 @@ macro_rules! register_function {
         /// fractions of the target's largest bounding-box side. ``alternations``,
         /// ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
         /// ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
-        /// ``max_target_points``: larger clouds are subsampled (seeded). ``robust_scale``:
+        /// ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
+        /// constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust_scale``:
         /// Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
         /// and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
         /// ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
@@ -141,6 +142,7 @@ register_function! {
     multistart_truncation: f64 = 0.05 => multistart_truncation,
     multistart_tie: f64 = 0.25 => multistart_tie,
     hypotheses: i64 = 3 => hypotheses,
+    free_motion_ratio: f64 = 0.002 => free_motion_ratio,
     max_source_points: i64 = 4096 => max_source_points,
     max_target_points: i64 = 100000 => max_target_points,
     robust_scale: Option<f64> = None => robust_scale,
@@ -212,6 +214,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
     m.add_class::<PyRegistration>()?;
+    m.add_class::<PyFreeMotion>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

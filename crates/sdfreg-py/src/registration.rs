@@ -1,6 +1,6 @@
 //! `sdfreg.Registration`: the result of `sdfreg.register`, read-only.
 
-use numpy::PyArray2;
+use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 
 use crate::convert;
@@ -65,6 +65,25 @@ impl PyRegistration {
         convert::matrix6(py, &self.0.information)
     }
 
+    /// Eigenvalues (6, ascending) of the normalised constraint matrix, each divided by the largest.
+    #[getter]
+    fn constraint_eigenvalues<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, &self.0.degeneracy.relative_eigenvalues)
+    }
+
+    /// Motions the clouds leave (nearly) free, least constrained first; empty when the pose is
+    /// fully determined.
+    #[getter]
+    fn free_motions(&self) -> Vec<PyFreeMotion> {
+        self.0
+            .degeneracy
+            .free
+            .iter()
+            .cloned()
+            .map(PyFreeMotion)
+            .collect()
+    }
+
     /// Wall time of the registration, seconds.
     #[getter]
     fn time_s(&self) -> f64 {
@@ -91,5 +110,41 @@ impl PyRegistration {
             r.time.as_secs_f64(),
             rows.join(",\n                             "),
         )
+    }
+}
+
+/// A motion of the source the clouds do not determine (see `Registration.free_motions`).
+#[pyclass(frozen, module = "sdfreg", name = "FreeMotion")]
+pub struct PyFreeMotion(pub sdfreg_core::FreeMotion);
+
+#[pymethods]
+impl PyFreeMotion {
+    /// "rotation", "translation" or "screw".
+    #[getter]
+    fn kind(&self) -> &'static str {
+        self.0.kind.name()
+    }
+
+    /// Unit direction (3,), target frame: the rotation axis or the translation direction.
+    #[getter]
+    fn axis<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, self.0.axis.as_slice())
+    }
+
+    /// A point (3,) of the rotation axis, target frame, the clouds' units (for a translation,
+    /// the moved source's centroid).
+    #[getter]
+    fn point<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        PyArray1::from_slice(py, self.0.point.coords.as_slice())
+    }
+
+    /// The constraint eigenvalue relative to the largest (0 = unconstrained).
+    #[getter]
+    fn relative_eigenvalue(&self) -> f64 {
+        self.0.relative_eigenvalue
+    }
+
+    fn __repr__(&self) -> String {
+        format!("FreeMotion({})", self.0)
     }
 }

@@ -99,6 +99,30 @@ def test_result_fields(pair) -> None:
     assert r.inlier_distance == pytest.approx(0.02)
     text = repr(r)
     assert text.startswith("Registration(converged=") and "transformation=[[" in text
+    ev = r.constraint_eigenvalues
+    assert ev.shape == (6,) and ev[-1] == 1.0 and np.all(np.diff(ev) >= 0)
+    assert ev[0] > 0.002 and r.free_motions == []
+
+
+def test_a_tube_reports_its_free_spin() -> None:
+    """An open tube about the z axis through (2, 1, 0), in mm: turning it about its axis changes
+    nothing (its ends still fix the slide along it), and the result says so."""
+    rng = np.random.default_rng(3)
+    h, t = rng.uniform(-400, 400, 3000), rng.uniform(0, 2 * np.pi, 3000)
+    target = np.column_stack([2 + 150 * np.cos(t), 1 + 150 * np.sin(t), h])
+    source = target + [30.0, -20.0, 10.0]
+    r = sdfreg.register(source, target, **QUICK)
+    assert [f.kind for f in r.free_motions] == ["rotation"], r.free_motions
+    spin = r.free_motions[0]
+    assert abs(spin.axis[2]) > 0.999 and spin.relative_eigenvalue < 0.002, spin
+    assert np.hypot(spin.point[0] - 2, spin.point[1] - 1) < 2.0, spin  # mm
+    assert repr(spin).startswith("FreeMotion(rotation about the axis")
+    assert r.constraint_eigenvalues[1] > 0.002
+    # The constrained part is right: the source's axis lands on the target's.
+    axis_moved = r.transformation[:3, :3] @ [0, 0, 1]
+    assert abs(axis_moved[2]) > 0.9998
+    centre = r.transformation @ [32, -19, 10, 1]  # the source's image of (2, 1, 0)
+    np.testing.assert_allclose(centre[:3], [2, 1, 0], atol=2.0)
 
 
 def test_keyword_defaults_are_the_core_defaults() -> None:

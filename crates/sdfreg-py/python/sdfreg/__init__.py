@@ -7,6 +7,7 @@ frame. Clouds are (N, 3) arrays of float32 or float64 in any units; Open3D cloud
 """
 
 from ._sdfreg import (
+    FreeMotion,
     Registration,
     __version__,
     read_point_cloud,
@@ -15,6 +16,7 @@ from ._sdfreg import (
 )
 
 __all__ = [
+    "FreeMotion",
     "Registration",
     "__version__",
     "read_point_cloud",

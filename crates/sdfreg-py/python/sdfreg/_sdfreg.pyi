@@ -1,13 +1,14 @@
 """Native part of sdfreg (Rust, pyo3). Import from ``sdfreg``, not from here."""
 
 import os
-from typing import Dict, Optional, Union, final
+from typing import Dict, List, Optional, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
 __all__ = [
+    "FreeMotion",
     "Registration",
     "__version__",
     "_core_defaults",
@@ -17,6 +18,25 @@ __all__ = [
 ]
 
 _PathLike = Union[str, "os.PathLike[str]"]
+
+@final
+class FreeMotion:
+    """A motion of the source that the clouds do not determine (relative constraint eigenvalue
+    below ``free_motion_ratio``)."""
+
+    @property
+    def kind(self) -> str:
+        """``"rotation"``, ``"translation"`` or ``"screw"``."""
+    @property
+    def axis(self) -> npt.NDArray[np.float64]:
+        """Unit direction (3,), target frame: the rotation axis or the translation direction."""
+    @property
+    def point(self) -> npt.NDArray[np.float64]:
+        """A point (3,) of the rotation axis, target frame, the clouds' units (for a
+        translation, the moved source's centroid)."""
+    @property
+    def relative_eigenvalue(self) -> float:
+        """The constraint eigenvalue relative to the largest (0 = unconstrained)."""
 
 @final
 class Registration:
@@ -53,6 +73,16 @@ class Registration:
         about the target origin: the information matrix of a left perturbation of
         ``transformation``. Small eigenvalues mark poorly constrained directions."""
     @property
+    def constraint_eigenvalues(self) -> npt.NDArray[np.float64]:
+        """Eigenvalues (6, ascending) of the normalised constraint matrix, each divided by the
+        largest: ``JᵀJ / N`` about the moved source's centroid, rotations scaled by its RMS radius.
+        """
+    @property
+    def free_motions(self) -> List[FreeMotion]:
+        """Motions the clouds leave (nearly) free, least constrained first — e.g. the spin of a
+        bottle about its axis. The pose along them is arbitrary. Empty when the pose is fully
+        determined."""
+    @property
     def time_s(self) -> float:
         """Wall time of the registration, seconds."""
 
@@ -75,6 +105,7 @@ def register(
     multistart_truncation: float = 0.05,
     multistart_tie: float = 0.25,
     hypotheses: int = 3,
+    free_motion_ratio: float = 0.002,
     max_source_points: int = 4096,
     max_target_points: int = 100000,
     robust_scale: Optional[float] = None,
@@ -126,7 +157,8 @@ def register(
     fractions of the target's largest bounding-box side. ``alternations``,
     ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
     ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
-    ``max_target_points``: larger clouds are subsampled (seeded). ``robust_scale``:
+    ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
+    constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust_scale``:
     Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
     and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
     ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
