@@ -50,6 +50,12 @@ pub struct Common {
     /// Skip the 24-rotation multi-start (centroid alignment only).
     #[arg(long)]
     pub no_multistart: bool,
+    /// Source points the solver uses at most; larger sources are subsampled (seeded) [default: 4096].
+    #[arg(long)]
+    pub max_source_points: Option<usize>,
+    /// Target points the SDF fit uses at most; larger targets are subsampled (seeded) [default: 100000].
+    #[arg(long)]
+    pub max_target_points: Option<usize>,
 }
 
 impl Common {
@@ -72,6 +78,12 @@ impl Common {
         }
         if let Some(p) = self.prefit_steps {
             s.fit.prefit_steps = p;
+        }
+        if let Some(n) = self.max_source_points {
+            s.max_source_points = n;
+        }
+        if let Some(n) = self.max_target_points {
+            s.max_target_points = n;
         }
         s
     }

@@ -44,13 +44,17 @@ impl Format {
 pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoError> {
     let path = path.as_ref();
     let format = Format::of(path)?;
-    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
+    let io_error = |source| IoError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
     let points = match format {
-        Format::Ply => ply::read(path, &bytes)?,
-        Format::Xyz => xyz::read(path, &bytes)?,
+        // Streamed: a large binary PLY is never held in memory twice.
+        Format::Ply => {
+            let file = std::fs::File::open(path).map_err(io_error)?;
+            ply::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
+        }
+        Format::Xyz => xyz::read(path, &std::fs::read(path).map_err(io_error)?)?,
     };
     if points.is_empty() {
         return Err(IoError::Empty {
