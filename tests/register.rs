@@ -35,6 +35,26 @@ fn recovers_a_40_degree_motion_of_a_blob() {
     );
 }
 
+#[test]
+fn the_polish_lays_a_copy_exactly_onto_its_points_and_can_be_turned_off() {
+    // The source is the target's own sample, moved: exact counterparts exist.
+    let target = blob(1024, 6);
+    let m = motion(35.0, [-0.2, 0.3, 0.1]);
+    let source = moved(&target, &m);
+    let mut s = quick();
+    let polished = register(&source, &target, None, &s).unwrap();
+    s.polish.iterations = 0;
+    let sdf_only = register(&source, &target, None, &s).unwrap();
+    let (rot, tr) = pose_errors(&polished.t_target_source, &m.inverse());
+    let (rot0, tr0) = pose_errors(&sdf_only.t_target_source, &m.inverse());
+    assert!(rot < 1e-3 && tr < 1e-5, "polished: {rot}°, {tr}");
+    assert!(rot0 < 1.0 && tr0 < 0.01, "SDF only: {rot0}°, {tr0}");
+    assert!(
+        rot0 > 100.0 * rot,
+        "the polish should matter: {rot0}° vs {rot}°"
+    );
+}
+
 /// A vase: a surface of revolution about `axis` (radius varying along it), so its spin about
 /// the axis is the one motion the points cannot determine.
 fn vase(n: usize, seed: u64) -> Vec<Point3<f64>> {

@@ -16,7 +16,7 @@
 //! ```
 //!
 //! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
-//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`se3`]
+//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`polish`] (the final point-to-plane steps), [`se3`]
 //! (exp/log maps), [`cloud`] (normalisation), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
 //! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
 #![warn(missing_docs)]
@@ -27,6 +27,7 @@ pub mod error;
 pub mod io;
 pub mod lm;
 pub mod mlp;
+pub mod polish;
 pub mod protocol;
 pub mod register;
 pub mod sdf_fit;
@@ -37,6 +38,7 @@ pub use degeneracy::{Degeneracy, FreeMotion, MotionKind};
 pub use error::{Error, IoError, Role};
 pub use lm::{Kernel, LmSettings};
 pub use mlp::MlpSettings;
+pub use polish::PolishSettings;
 pub use register::{
     register, register_with_progress, RegisterSettings, Registration, Stage, StopReason,
 };

@@ -13,7 +13,8 @@
 //!    `lm_steps_per_alternation` LM steps per hypothesis; halfway, hypotheses that fit clearly
 //!    worse are dropped, and at the end the best-fitting one is kept;
 //! 5. final LM steps on the frozen Φ until converged;
-//! 6. map the pose back to the user's frame and measure fitness, inlier RMSE, JᵀJ and the
+//! 6. a robust point-to-plane polish against the target points ([`crate::polish`]);
+//! 7. map the pose back to the user's frame and measure fitness, inlier RMSE, JᵀJ and the
 //!    motions the data leave free ([`crate::degeneracy`]) there.
 //!
 //! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
@@ -35,6 +36,7 @@ use crate::degeneracy::{Degeneracy, FREE_MOTION_RATIO};
 use crate::error::{Error, Role};
 use crate::lm::{jacobian_row, Kernel, Lm, LmSettings, StepOutcome};
 use crate::mlp::MlpSettings;
+use crate::polish::{polish, PolishSettings};
 use crate::sdf_fit::{FitSettings, SdfFitter};
 
 /// Fewest points accepted in either cloud.
@@ -50,6 +52,8 @@ pub struct RegisterSettings {
     pub fit: FitSettings,
     /// The Levenberg–Marquardt solver.
     pub lm: LmSettings,
+    /// The final point-to-plane polish against the target points ([`crate::polish`]).
+    pub polish: PolishSettings,
     /// Coarse-to-fine alternations of SDF refinement and LM steps. Default 10.
     pub alternations: usize,
     /// LM steps per alternation. Default 2.
@@ -105,6 +109,7 @@ impl Default for RegisterSettings {
             mlp: MlpSettings::default(),
             fit: FitSettings::default(),
             lm: LmSettings::default(),
+            polish: PolishSettings::default(),
             alternations: 10,
             lm_steps_per_alternation: 2,
             final_lm_steps: 10,
@@ -150,6 +155,16 @@ impl RegisterSettings {
         }
         if self.max_source_points < MIN_POINTS || self.max_target_points < MIN_POINTS {
             return bad("max_*_points", "must be at least 10");
+        }
+        let p = &self.polish;
+        if p.neighbours < 3 {
+            return bad("polish.neighbours", "a local plane needs at least 3 points");
+        }
+        if !(p.max_distance > 0.0 && p.max_shift >= 0.0) {
+            return bad(
+                "polish.max_*",
+                "max_distance must be positive, max_shift ≥ 0",
+            );
         }
         if !(0.0..1.0).contains(&self.free_motion_ratio) {
             return bad("free_motion_ratio", "must be in [0, 1)");
@@ -530,8 +545,9 @@ fn run(
         }
     }
 
+    let pose_unit = polish(&src_unit, fit.target(), fit.tree(), &lm.pose, &s.polish).pose;
+
     // Quality measures in the user's frame.
-    let pose_unit = lm.pose;
     let moved = transformed_f32(&src_unit, &pose_unit);
     let (phi, grads) = fit.mlp().eval(&moved, true);
     let mut information = Matrix6::zeros();

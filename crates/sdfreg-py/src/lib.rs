@@ -87,6 +87,8 @@ macro_rules! register_function {
         /// ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
         /// ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
         /// ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
+        /// ``polish_*``: the final point-to-plane steps on the target points
+        /// (``polish_iterations=0`` turns them off).
         ///
         /// Returns:
         ///     The :class:`Registration`.
@@ -171,6 +173,10 @@ register_function! {
     max_tries: i64 = 6 => lm.max_tries,
     rotation_tolerance: f64 = 1e-5 => lm.rotation_tolerance,
     translation_tolerance: f64 = 1e-5 => lm.translation_tolerance,
+    polish_iterations: i64 = 15 => polish.iterations,
+    polish_neighbours: i64 = 5 => polish.neighbours,
+    polish_max_distance: f64 = 0.05 => polish.max_distance,
+    polish_max_shift: f64 = 0.05 => polish.max_shift,
 }
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.

@@ -134,6 +134,10 @@ def register(
     max_tries: int = 6,
     rotation_tolerance: float = 1e-5,
     translation_tolerance: float = 1e-5,
+    polish_iterations: int = 15,
+    polish_neighbours: int = 5,
+    polish_max_distance: float = 0.05,
+    polish_max_shift: float = 0.05,
 ) -> Registration:
     """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
     cloud onto the target's surface, without point correspondences.
@@ -164,6 +168,8 @@ def register(
     ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
     ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
     ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
+    ``polish_*``: the final point-to-plane steps on the target points
+    (``polish_iterations=0`` turns them off).
 
     Returns:
         The :class:`Registration`.

@@ -1,0 +1,282 @@
+//! The final polish: a few robust point-to-plane Gauss–Newton steps against the target points.
+//!
+//! Φ is a smooth fit of the target, so the SDF stage stops a few tenths of a degree from the
+//! pose that lays the source exactly onto the target's points (Φ's zero set is off the points
+//! by its fitting error). Started there — well inside the basin that correspondence methods need —
+//! point-to-plane steps remove that floor. Two stages:
+//! 1. local planes: residual `rᵢ = nᵢ·(xᵢ − mᵢ)`, the distance of the moved source point `xᵢ`
+//!    to the plane fitted (PCA) through its [`PolishSettings::neighbours`] nearest target points
+//!    (centroid `mᵢ`, normal `nᵢ`). The plane averages the target's noise: measured on the
+//!    noisy ModelNet pairs, the plain nearest-point residual made the polish worse than none
+//!    (median 1.16° → 1.61° with independent samples), local planes better (→ 0.83°);
+//! 2. snap: residual `nᵢ·(xᵢ − qᵢ)` to the nearest target point `qᵢ` itself, kept only when it
+//!    lays the source onto the target's own points (a copy or a subset of the target cloud).
+//!
+//! Both use the Jacobian row `[xᵢ × nᵢ; nᵢ]` (the same left twist as the SDF's LM),
+//! Geman–McClure weights with the scale from the median |r|, and leave out the points farther
+//! than [`PolishSettings::max_distance`] from the target (outside its coverage). Per-point terms are summed in a fixed order: results do not depend on the threads.
+//!
+//! The polish only refines: if it would move the source points by more than
+//! [`PolishSettings::max_shift`] (RMS), the SDF pose is kept (the polish had latched onto the
+//! wrong points).
+
+use std::num::NonZeroUsize;
+use std::sync::OnceLock;
+
+use kiddo::SquaredEuclidean;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
+use rayon::prelude::*;
+
+use crate::lm::jacobian_row;
+use crate::sdf_fit::Tree;
+use crate::se3::exp_se3;
+
+/// The snap stage's result is kept when the moved source points' median distance to the nearest
+/// target point is below this fraction of the target's median point spacing (they coincide).
+pub const SNAP_RATIO: f64 = 0.01;
+
+/// Settings of the point-to-plane polish. Lengths are normalised (fractions of the target's
+/// largest bounding-box side).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PolishSettings {
+    /// Gauss–Newton iterations at most; 0 disables the polish. Default 15.
+    pub iterations: usize,
+    /// Target points (nearest to a moved source point) that the local plane is fitted to.
+    /// Default 5 (measured on 36 ModelNet pairs per protocol: 3–40 tried; 5 was best on the
+    /// noisy and the independently sampled ones).
+    pub neighbours: usize,
+    /// Source points farther than this from every target point are left out. Default 0.05.
+    pub max_distance: f64,
+    /// The polish is undone if it moves the source points by more than this (RMS). Default 0.05.
+    pub max_shift: f64,
+}
+
+impl Default for PolishSettings {
+    fn default() -> Self {
+        Self {
+            iterations: 15,
+            neighbours: 5,
+            max_distance: 0.05,
+            max_shift: 0.05,
+        }
+    }
+}
+
+/// What the polish did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PolishOutcome {
+    /// The pose after the polish (the input pose when it was undone).
+    pub pose: Isometry3<f64>,
+    /// Iterations run (both stages).
+    pub iterations: usize,
+    /// Whether the source was found on the target's own points and snapped onto them.
+    pub snapped: bool,
+    /// Whether the polish moved too far and was undone.
+    pub undone: bool,
+}
+
+/// Distance of `x` to the plane fitted (PCA) through its `k` nearest target points, signed along
+/// that plane's normal, and the normal; `None` when `x` is farther than `max_d2` (squared) from
+/// every target point.
+fn local_plane(
+    target: &[[f32; 3]],
+    tree: &Tree,
+    x: &Point3<f64>,
+    k: usize,
+    max_d2: f64,
+) -> Option<(f64, Vector3<f64>)> {
+    let xf = [x.x as f32, x.y as f32, x.z as f32];
+    let nn = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k.max(3)).unwrap());
+    if nn.first()?.distance as f64 > max_d2 {
+        return None;
+    }
+    let pts: Vec<Vector3<f64>> = nn
+        .iter()
+        .map(|n| {
+            let p = target[n.item as usize];
+            Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+        })
+        .collect();
+    let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+    let cov: Matrix3<f64> = pts
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum();
+    let eig = SymmetricEigen::new(cov);
+    let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+    Some((n.dot(&(x.coords - mean)), n))
+}
+
+/// The normal (PCA of `k` target points nearest to `target[i]`) at a target point.
+fn point_normal(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Vector3<f64>> {
+    let q = target[i];
+    let x = Point3::new(q[0] as f64, q[1] as f64, q[2] as f64);
+    local_plane(target, tree, &x, k, f64::INFINITY).map(|(_, n)| n)
+}
+
+/// Robust Gauss–Newton steps on the residuals `residual(x) → (r, n)` of the moved source points
+/// (row `[x × n; n]`); returns the pose and the iterations run.
+fn gauss_newton(
+    source: &[Point3<f64>],
+    pose: Isometry3<f64>,
+    iterations: usize,
+    residual: impl Fn(&Point3<f64>) -> Option<(f64, Vector3<f64>)> + Sync,
+) -> (Isometry3<f64>, usize) {
+    let mut pose = pose;
+    let mut done = 0;
+    while done < iterations {
+        done += 1;
+        let terms: Vec<Option<(f64, Vector6<f64>)>> = source
+            .par_iter()
+            .map(|p| {
+                let x = pose * p;
+                let (r, n) = residual(&x)?;
+                Some((r, jacobian_row(&x.coords, &n)))
+            })
+            .collect();
+        let used: Vec<&(f64, Vector6<f64>)> = terms.iter().flatten().collect();
+        if used.len() < 6 {
+            break;
+        }
+        let mut abs: Vec<f64> = used.iter().map(|t| t.0.abs()).collect();
+        abs.sort_by(f64::total_cmp);
+        let c = (3.0 * 1.4826 * abs[abs.len() / 2]).max(1e-9);
+        let mut h = Matrix6::zeros();
+        let mut g = Vector6::zeros();
+        for (r, j) in used {
+            let u = r / c;
+            let w = 1.0 / ((1.0 + u * u) * (1.0 + u * u));
+            h += w * j * j.transpose();
+            g += w * r * j;
+        }
+        // Damping of 10⁻⁴ × trace keeps directions the planes do not constrain where the SDF
+        // put them: a surface of revolution's spin, or an open tube's slide along its axis
+        // (whose wall normals are all radial, while Φ also sees the rims).
+        let damping = 1e-4 * h.trace() + 1e-15;
+        for k in 0..6 {
+            h[(k, k)] += damping;
+        }
+        let Some(delta) = h.cholesky().map(|ch| -ch.solve(&g)) else {
+            break;
+        };
+        pose = exp_se3(&delta) * pose;
+        if delta.fixed_rows::<3>(0).norm() < 1e-8 && delta.fixed_rows::<3>(3).norm() < 1e-8 {
+            break;
+        }
+    }
+    (pose, done)
+}
+
+/// Median over `points` of the distance to the nearest target point (excluding a point's own
+/// entry when `skip_self`).
+fn median_nn(points: impl Iterator<Item = [f32; 3]>, tree: &Tree, skip_self: bool) -> f64 {
+    let k = NonZeroUsize::new(if skip_self { 2 } else { 1 }).unwrap();
+    let mut d: Vec<f64> = points
+        .map(|q| {
+            let nn = tree.nearest_n::<SquaredEuclidean>(&q, k);
+            (nn.last().map_or(f64::INFINITY, |n| n.distance as f64)).sqrt()
+        })
+        .collect();
+    if d.is_empty() {
+        return f64::INFINITY;
+    }
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
+}
+
+/// Polishes `pose` (unit frame, maps `source` into the target frame) against the `target`
+/// points and their k-d `tree`.
+pub fn polish(
+    source: &[Point3<f64>],
+    target: &[[f32; 3]],
+    tree: &Tree,
+    pose: &Isometry3<f64>,
+    s: &PolishSettings,
+) -> PolishOutcome {
+    let start = *pose;
+    let max_d2 = s.max_distance * s.max_distance;
+    let k = s.neighbours;
+    let (mut pose, mut iterations) = gauss_newton(source, start, s.iterations, |x| {
+        local_plane(target, tree, x, k, max_d2)
+    });
+    // Snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
+    // the nearest target point (normal from its neighbours) lay it exactly onto those points.
+    // Tried always; kept only when it got there: the source points' median distance to the
+    // nearest target point below SNAP_RATIO × the target's median spacing. On independent
+    // samples or noise it never does (the local planes' result stands).
+    let mut snapped = false;
+    if s.iterations > 0 {
+        let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
+            (0..target.len()).map(|_| OnceLock::new()).collect();
+        let (candidate, n) = gauss_newton(source, pose, s.iterations, |x| {
+            let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+            if nn.distance as f64 > max_d2 {
+                return None;
+            }
+            let i = nn.item as usize;
+            let n = (*normals[i].get_or_init(|| point_normal(target, tree, i, k)))?;
+            let q = target[i];
+            Some((
+                n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
+                n,
+            ))
+        });
+        iterations += n;
+        let on_target = source.iter().map(|p| {
+            let x = candidate * p;
+            [x.x as f32, x.y as f32, x.z as f32]
+        });
+        let step = (target.len() / 1024).max(1);
+        let spacing = median_nn(target.iter().step_by(step).copied(), tree, true);
+        if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
+            pose = candidate;
+            snapped = true;
+        }
+    }
+    let shift2 = source
+        .iter()
+        .map(|p| (pose * p - start * p).norm_squared())
+        .sum::<f64>()
+        / source.len().max(1) as f64;
+    let undone = shift2.sqrt() > s.max_shift;
+    PolishOutcome {
+        pose: if undone { start } else { pose },
+        iterations,
+        snapped,
+        undone,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sdf_fit::build_tree;
+    use rand::SeedableRng;
+
+    #[test]
+    fn removes_a_small_offset_on_shared_points_and_ignores_far_ones() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let target: Vec<[f32; 3]> = crate::shapes::blob(3000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32 * 0.8, p.y as f32 * 0.8, p.z as f32 * 0.8])
+            .collect();
+        let tree = build_tree(&target);
+        let truth = Isometry3::identity();
+        let mut source: Vec<Point3<f64>> = target[..1500]
+            .iter()
+            .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        // Points beyond the target's coverage must not pull.
+        source.extend((0..300).map(|i| Point3::new(0.9 + i as f64 * 1e-3, 0.9, 0.0)));
+        let start = exp_se3(&Vector6::new(0.01, -0.008, 0.005, 0.004, -0.003, 0.002));
+        let out = polish(&source, &target, &tree, &start, &PolishSettings::default());
+        assert!(!out.undone);
+        let err = truth.inverse() * out.pose;
+        assert!(
+            err.rotation.angle().to_degrees() < 0.01 && err.translation.vector.norm() < 1e-4,
+            "{}° {}",
+            err.rotation.angle().to_degrees(),
+            err.translation.vector.norm()
+        );
+    }
+}
