@@ -55,6 +55,30 @@ fn the_polish_lays_a_copy_exactly_onto_its_points_and_can_be_turned_off() {
     );
 }
 
+#[test]
+fn the_robust_kernel_ignores_source_points_outside_the_target() {
+    // A partial view: the target lacks the part of the blob with x > 0.3, which the source
+    // still has (about a sixth of it); the overlap must decide the pose.
+    let full = blob(1500, 8);
+    let target: Vec<_> = blob(1500, 9).into_iter().filter(|p| p.x < 0.3).collect();
+    let m = motion(30.0, [0.2, -0.1, 0.1]);
+    let source = moved(&full, &m);
+    let plain = register(&source, &target, None, &quick()).unwrap();
+    let (rot_l2, _) = pose_errors(&plain.t_target_source, &m.inverse());
+    assert!(rot_l2 > 3.0, "least squares is dragged off: {rot_l2}°");
+    let mut s = quick();
+    s.robust = true;
+    s.multistart_tie = 0.05;
+    let r = register(&source, &target, None, &s).unwrap();
+    let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    assert!(rot < 1.0 && tr < 0.01, "robust: {rot}°, {tr}");
+    assert!(
+        r.fitness < 0.9,
+        "the fitness reports the partial overlap: {}",
+        r.fitness
+    );
+}
+
 /// A vase: a surface of revolution about `axis` (radius varying along it), so its spin about
 /// the axis is the one motion the points cannot determine.
 fn vase(n: usize, seed: u64) -> Vec<Point3<f64>> {

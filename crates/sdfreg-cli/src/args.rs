@@ -41,12 +41,20 @@ pub struct Common {
     /// Adam steps of SDF refinement per alternation.
     #[arg(long)]
     pub refine_steps: Option<usize>,
-    /// Robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
+    /// Robust (Geman–McClure) kernel with its scale from the residuals, annealed; for partial
+    /// overlap (real scans).
+    #[arg(long)]
+    pub robust: bool,
+    /// A fixed robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
     #[arg(long)]
     pub robust_scale: Option<f64>,
     /// Also start the multi-start shifted by ± this along each axis (fraction of the target's size).
     #[arg(long)]
     pub multistart_offset: Option<f64>,
+    /// Multi-start finalists within this fraction of the best score are ties, won by the smallest
+    /// rotation [default: 0.25]; 0.05 for scans whose views are far apart.
+    #[arg(long)]
+    pub multistart_tie: Option<f64>,
     /// Skip the 24-rotation multi-start (centroid alignment only).
     #[arg(long)]
     pub no_multistart: bool,
@@ -64,6 +72,7 @@ impl Common {
             seed: self.seed,
             threads: self.threads,
             robust_scale: self.robust_scale,
+            robust: self.robust,
             multistart: !self.no_multistart,
             ..Default::default()
         };
@@ -78,6 +87,9 @@ impl Common {
         }
         if let Some(p) = self.prefit_steps {
             s.fit.prefit_steps = p;
+        }
+        if let Some(t) = self.multistart_tie {
+            s.multistart_tie = t;
         }
         if let Some(n) = self.max_source_points {
             s.max_source_points = n;

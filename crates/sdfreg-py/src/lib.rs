@@ -81,8 +81,9 @@ macro_rules! register_function {
         /// ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
         /// ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
         /// ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
-        /// constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust_scale``:
-        /// Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
+        /// constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust``:
+        /// Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
+        /// ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale. ``inlier_distance``: for ``fitness``
         /// and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
         /// ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
         /// ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
@@ -148,6 +149,10 @@ register_function! {
     max_source_points: i64 = 4096 => max_source_points,
     max_target_points: i64 = 100000 => max_target_points,
     robust_scale: Option<f64> = None => robust_scale,
+    robust: bool = false => robust,
+    robust_kappa_start: f64 = 3.0 => robust_kappa_start,
+    robust_kappa_end: f64 = 1.0 => robust_kappa_end,
+    robust_floor: f64 = 0.002 => robust_floor,
     inlier_distance: f64 = 0.02 => inlier_distance,
     width: i64 = 32 => mlp.width,
     depth: i64 = 3 => mlp.depth,

@@ -109,6 +109,10 @@ def register(
     max_source_points: int = 4096,
     max_target_points: int = 100000,
     robust_scale: Optional[float] = None,
+    robust: bool = False,
+    robust_kappa_start: float = 3.0,
+    robust_kappa_end: float = 1.0,
+    robust_floor: float = 0.002,
     inlier_distance: float = 0.02,
     width: int = 32,
     depth: int = 3,
@@ -162,8 +166,9 @@ def register(
     ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
     ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
     ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
-    constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust_scale``:
-    Geman–McClure kernel scale (None = least squares). ``inlier_distance``: for ``fitness``
+    constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust``:
+    Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
+    ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale. ``inlier_distance``: for ``fitness``
     and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
     ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
     ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
