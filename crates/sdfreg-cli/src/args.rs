@@ -103,9 +103,9 @@ impl Common {
 
 #[derive(Args, Debug)]
 pub struct RegisterArgs {
-    /// Cloud to move (.ply, .xyz, .txt, .csv).
+    /// Cloud to move (.ply, .pcd, .xyz, .txt, .csv).
     pub source: PathBuf,
-    /// Fixed cloud (.ply, .xyz, .txt, .csv).
+    /// Fixed cloud (.ply, .pcd, .xyz, .txt, .csv).
     pub target: PathBuf,
     /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
     #[arg(long, short)]
@@ -116,6 +116,10 @@ pub struct RegisterArgs {
     /// Initial guess: a text file with a 4×4 matrix (source into target); skips the multi-start.
     #[arg(long)]
     pub init: Option<PathBuf>,
+    /// Drop points with a NaN or infinite coordinate (and say how many) instead of refusing the
+    /// file: organised PCL clouds and range scanners mark missing returns that way.
+    #[arg(long)]
+    pub drop_non_finite: bool,
     /// Overwrite --output / --aligned if they exist.
     #[arg(long)]
     pub force: bool,

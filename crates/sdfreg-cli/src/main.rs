@@ -13,7 +13,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix4, Point3, SMatrix, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
-use sdfreg_core::io::{read_point_cloud, write_point_cloud};
+use sdfreg_core::io::{read_point_cloud, read_point_cloud_dropping_non_finite, write_point_cloud};
 use sdfreg_core::protocol::pose_errors;
 use sdfreg_core::se3::isometry_from_matrix;
 use sdfreg_core::{register_with_progress, Degeneracy, RegisterSettings, Registration, Stage};
@@ -177,8 +177,22 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     for out in [&a.output, &a.aligned].into_iter().flatten() {
         refuse_overwrite(out, &inputs, a.force)?;
     }
-    let source = read_point_cloud(&a.source)?;
-    let target = read_point_cloud(&a.target)?;
+    let read = |path: &Path| -> Result<Vec<Point3<f64>>> {
+        if !a.drop_non_finite {
+            return Ok(read_point_cloud(path)?);
+        }
+        let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
+        if dropped > 0 {
+            eprintln!(
+                "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+                path.display(),
+                points.len() + dropped
+            );
+        }
+        Ok(points)
+    };
+    let source = read(&a.source)?;
+    let target = read(&a.target)?;
     let init = a.init.as_deref().map(read_matrix).transpose()?;
     let settings = a.common.settings();
     let r = register_with_bar(&source, &target, init.as_ref(), &settings)?;

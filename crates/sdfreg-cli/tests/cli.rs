@@ -5,6 +5,8 @@ use std::process::Command;
 
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
+use sdfreg_core::protocol::pose_errors;
+use sdfreg_core::se3::isometry_from_matrix;
 
 fn sdfreg() -> Command {
     Command::new(env!("CARGO_BIN_EXE_sdfreg"))
@@ -161,6 +163,49 @@ fn bad_input_exits_2_with_one_line_naming_the_file() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("not a rigid transform"));
+}
+
+#[test]
+fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = pair(dir.path());
+    // The source as PCD, and a copy with two NaN rows (as a range scanner writes them).
+    let src = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
+    sdfreg_core::io::write_point_cloud(dir.path().join("src.pcd"), &src).unwrap();
+    let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
+    text.insert_str(0, "nan nan nan\n");
+    text.push_str("1 NaN 2\n");
+    std::fs::write(dir.path().join("holes.xyz"), text).unwrap();
+    let tgt = dir.path().join("tgt.ply");
+    let refused = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("holes.xyz"))
+        .arg(&tgt)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("holes.xyz:1: point 0 has a non-finite coordinate"),
+        "{err}"
+    );
+    for (source, extra) in [("holes.xyz", Some("--drop-non-finite")), ("src.pcd", None)] {
+        let out = sdfreg()
+            .arg("register")
+            .arg(dir.path().join(source))
+            .arg(&tgt)
+            .args(extra)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        if extra.is_some() {
+            assert!(err.contains("holes.xyz: dropped 2 of 802 points"), "{err}");
+        }
+        let m = parse_matrix(&String::from_utf8_lossy(&out.stdout));
+        let (rot, tr) = pose_errors(&isometry_from_matrix(&m).unwrap(), &truth);
+        assert!(rot < 1.0 && tr < 0.01, "{source}: {rot}°, {tr}");
+    }
 }
 
 #[test]

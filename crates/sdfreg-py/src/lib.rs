@@ -188,17 +188,44 @@ register_function! {
 /// Reads a point cloud as an (N, 3) float64 array.
 ///
 /// Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
-/// element's x, y, z), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+/// element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
+/// ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+///
+/// Args:
+///     path: The file.
+///     drop_non_finite: Drop points with a NaN or infinite coordinate (organised PCL clouds
+///         and range scanners mark missing returns that way) and warn how many, instead of
+///         raising.
 ///
 /// Raises:
 ///     OSError: the file cannot be read (``FileNotFoundError``, ``PermissionError``, …), its
 ///         format is unknown, or its contents are malformed; the message names the file and,
 ///         for text, the line.
 #[pyfunction]
-fn read_point_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Bound<'_, PyArray2<f64>>> {
-    let points = py
-        .detach(|| sdfreg_core::io::read_point_cloud(&path))
+#[pyo3(signature = (path, *, drop_non_finite = false))]
+fn read_point_cloud(
+    py: Python<'_>,
+    path: PathBuf,
+    drop_non_finite: bool,
+) -> PyResult<Bound<'_, PyArray2<f64>>> {
+    let (points, dropped) = py
+        .detach(|| {
+            if drop_non_finite {
+                sdfreg_core::io::read_point_cloud_dropping_non_finite(&path)
+            } else {
+                sdfreg_core::io::read_point_cloud(&path).map(|p| (p, 0))
+            }
+        })
         .map_err(error::io)?;
+    if dropped > 0 {
+        let message = format!(
+            "{}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+            path.display(),
+            points.len() + dropped
+        );
+        let warning = py.get_type::<pyo3::exceptions::PyUserWarning>();
+        PyErr::warn(py, &warning, &std::ffi::CString::new(message)?, 1)?;
+    }
     Ok(convert::points_to_array(py, &points))
 }
 

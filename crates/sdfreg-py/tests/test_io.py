@@ -11,7 +11,7 @@ import sdfreg
 from conftest import blob
 
 
-@pytest.mark.parametrize("name", ["a.ply", "a.xyz", "a.txt", "a.csv", "a.PTS"])
+@pytest.mark.parametrize("name", ["a.ply", "a.pcd", "a.xyz", "a.txt", "a.csv", "a.PTS"])
 def test_round_trip_is_exact(tmp_path: Path, name: str) -> None:
     points = blob(300, np.random.default_rng(1)) * 1e3 + np.array([6e5, -4e6, 12.5])
     sdfreg.write_point_cloud(tmp_path / name, points)
@@ -46,3 +46,20 @@ def test_text_with_commas_and_extra_columns(tmp_path: Path) -> None:
     np.testing.assert_array_equal(
         sdfreg.read_point_cloud(tmp_path / "a.csv"), [[1, 2, 3], [4, 5, 6]]
     )
+
+
+def test_pcd_as_pcl_writes_it_with_nan_for_missing_returns(tmp_path: Path) -> None:
+    """An organised PCL cloud (2×2, one missing return as NaN), binary float32 x y z plus rgb."""
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z rgb\n"
+        "SIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 2\nHEIGHT 2\n"
+        "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 4\nDATA binary\n"
+    )
+    rows = np.zeros(4, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+    rows["x"], rows["y"], rows["z"] = [1, np.nan, 3, 4], [0.5, 0, 2, 2], [-1, 0, 0, 1]
+    (tmp_path / "o.pcd").write_bytes(header.encode() + rows.tobytes())
+    with pytest.raises(OSError, match=r"o\.pcd: point 1 has a non-finite coordinate"):
+        sdfreg.read_point_cloud(tmp_path / "o.pcd")
+    with pytest.warns(UserWarning, match=r"o\.pcd: dropped 1 of 4 points"):
+        points = sdfreg.read_point_cloud(tmp_path / "o.pcd", drop_non_finite=True)
+    np.testing.assert_array_equal(points, [[1, 0.5, -1], [3, 2, 0], [4, 2, 1]])

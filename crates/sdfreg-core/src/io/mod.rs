@@ -1,8 +1,10 @@
-//! Reading and writing point clouds: PLY (ascii and binary, via ply-rs) and XYZ/TXT/CSV text.
+//! Reading and writing point clouds: PLY (ascii and binary, via ply-rs), PCD (ascii, binary and
+//! binary_compressed, via pcd-rs) and XYZ/TXT/CSV text.
 //!
 //! Entry points: [`read_point_cloud`] and [`write_point_cloud`], which choose the format from
 //! the file's extension (case-insensitive).
 
+mod pcd;
 mod ply;
 mod xyz;
 
@@ -17,6 +19,8 @@ pub use crate::error::IoError;
 pub enum Format {
     /// Stanford PLY: the `vertex` element's `x`, `y`, `z` (any numeric type).
     Ply,
+    /// Point Cloud Library PCD: the `x`, `y`, `z` fields (any type).
+    Pcd,
     /// Text, one point per line, first three columns separated by spaces, tabs or commas.
     Xyz,
 }
@@ -31,6 +35,7 @@ impl Format {
             .to_ascii_lowercase();
         match ext.as_str() {
             "ply" => Ok(Format::Ply),
+            "pcd" => Ok(Format::Pcd),
             "xyz" | "txt" | "csv" | "pts" => Ok(Format::Xyz),
             _ => Err(IoError::UnknownFormat {
                 path: path.to_path_buf(),
@@ -40,27 +45,11 @@ impl Format {
     }
 }
 
-/// Reads the points of a cloud file. Refuses empty clouds and non-finite coordinates.
+/// Reads the points of a cloud file. Refuses empty clouds and non-finite coordinates (see
+/// [`read_point_cloud_dropping_non_finite`] for scans that mark missing returns with NaN).
 pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoError> {
     let path = path.as_ref();
-    let format = Format::of(path)?;
-    let io_error = |source| IoError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let points = match format {
-        // Streamed: a large binary PLY is never held in memory twice.
-        Format::Ply => {
-            let file = std::fs::File::open(path).map_err(io_error)?;
-            ply::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
-        }
-        Format::Xyz => xyz::read(path, &std::fs::read(path).map_err(io_error)?)?,
-    };
-    if points.is_empty() {
-        return Err(IoError::Empty {
-            path: path.to_path_buf(),
-        });
-    }
+    let points = read_any(path, false)?;
     if let Some(index) = points
         .iter()
         .position(|p| !p.coords.iter().all(|v| v.is_finite()))
@@ -74,12 +63,66 @@ pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoEr
     Ok(points)
 }
 
-/// Writes points to `path` (PLY: binary little-endian doubles; text: `x y z` lines with full
-/// precision). Overwrites an existing file: callers decide whether that is wanted.
+/// Reads the points of a cloud file without those with a NaN or infinite coordinate (organised
+/// PCL clouds and range scanners write NaN for missing returns); returns the points and how many
+/// were dropped. Refuses a cloud with no finite point.
+pub fn read_point_cloud_dropping_non_finite(
+    path: impl AsRef<Path>,
+) -> Result<(Vec<Point3<f64>>, usize), IoError> {
+    let path = path.as_ref();
+    let mut points = read_any(path, true)?;
+    let before = points.len();
+    points.retain(|p| p.coords.iter().all(|v| v.is_finite()));
+    if points.is_empty() {
+        return Err(IoError::NonFinite {
+            path: path.to_path_buf(),
+            line: None,
+            index: 0,
+        });
+    }
+    let dropped = before - points.len();
+    Ok((points, dropped))
+}
+
+/// Reads every point of a cloud file; refuses an empty one. Text files refuse a non-finite
+/// coordinate with its line number unless `keep_non_finite`.
+fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoError> {
+    let format = Format::of(path)?;
+    let io_error = |source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let points = match format {
+        // Streamed: a large binary PLY is never held in memory twice.
+        Format::Ply => {
+            let file = std::fs::File::open(path).map_err(io_error)?;
+            ply::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
+        }
+        Format::Pcd => {
+            let file = std::fs::File::open(path).map_err(io_error)?;
+            pcd::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
+        }
+        Format::Xyz => xyz::read(
+            path,
+            &std::fs::read(path).map_err(io_error)?,
+            keep_non_finite,
+        )?,
+    };
+    if points.is_empty() {
+        return Err(IoError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(points)
+}
+
+/// Writes points to `path` (PLY and PCD: binary little-endian doubles; text: `x y z` lines with
+/// full precision). Overwrites an existing file: callers decide whether that is wanted.
 pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Result<(), IoError> {
     let path = path.as_ref();
     let bytes = match Format::of(path)? {
         Format::Ply => ply::encode(points),
+        Format::Pcd => pcd::encode(points),
         Format::Xyz => xyz::encode(points),
     };
     std::fs::write(path, bytes).map_err(|source| IoError::Io {
@@ -100,7 +143,7 @@ mod tests {
             Point3::new(1.0, -2.5, 3.25),
             Point3::new(1e6 + 0.125, 2e-7, -4.0),
         ];
-        for name in ["a.ply", "a.xyz", "a.TXT", "a.csv"] {
+        for name in ["a.ply", "a.pcd", "a.xyz", "a.TXT", "a.csv"] {
             let p = dir.join(name);
             write_point_cloud(&p, &pts).unwrap();
             assert_eq!(read_point_cloud(&p).unwrap(), pts, "{name}");
@@ -113,6 +156,31 @@ mod tests {
             read_point_cloud(dir.join("missing.ply")),
             Err(IoError::Io { .. })
         ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn non_finite_points_are_refused_or_dropped_on_request() {
+        let dir = std::env::temp_dir().join(format!("sdfreg-nan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("n.xyz");
+        std::fs::write(&p, "1 2 3\nnan 0 0\n4 5 6\n0 inf 0\n").unwrap();
+        assert!(matches!(
+            read_point_cloud(&p),
+            Err(IoError::NonFinite {
+                index: 1,
+                line: Some(2),
+                ..
+            })
+        ));
+        let (pts, dropped) = read_point_cloud_dropping_non_finite(&p).unwrap();
+        assert_eq!(dropped, 2);
+        assert_eq!(
+            pts,
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+        );
+        std::fs::write(&p, "nan 0 0\n").unwrap();
+        assert!(read_point_cloud_dropping_non_finite(&p).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -8,7 +8,13 @@ use nalgebra::Point3;
 
 use crate::error::IoError;
 
-pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoError> {
+/// Parses `x y z` lines; a non-finite coordinate is an error naming its line unless
+/// `keep_non_finite`.
+pub(super) fn read(
+    path: &Path,
+    bytes: &[u8],
+    keep_non_finite: bool,
+) -> Result<Vec<Point3<f64>>, IoError> {
     let text = std::str::from_utf8(bytes).map_err(|e| IoError::Parse {
         path: path.into(),
         line: None,
@@ -43,7 +49,7 @@ pub(super) fn read(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoErro
             });
         }
         let p = Point3::new(parsed[0].unwrap(), parsed[1].unwrap(), parsed[2].unwrap());
-        if !p.coords.iter().all(|v| v.is_finite()) {
+        if !keep_non_finite && !p.coords.iter().all(|v| v.is_finite()) {
             return Err(IoError::NonFinite {
                 path: path.into(),
                 line: Some(i + 1),
@@ -68,10 +74,14 @@ pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    fn read_strict(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoError> {
+        read(path, bytes, false)
+    }
+
     #[test]
     fn reads_separators_headers_comments_and_extra_columns() {
         let text = "x,y,z,intensity\n# comment\n1,2,3,9\n\n4 5\t6 7 8\r\n";
-        let pts = read(Path::new("t.csv"), text.as_bytes()).unwrap();
+        let pts = read_strict(Path::new("t.csv"), text.as_bytes()).unwrap();
         assert_eq!(
             pts,
             vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
@@ -80,13 +90,13 @@ mod tests {
 
     #[test]
     fn names_the_line_of_bad_data() {
-        let err = read(Path::new("t.xyz"), b"1 2 3\n4 5\n").unwrap_err();
+        let err = read_strict(Path::new("t.xyz"), b"1 2 3\n4 5\n").unwrap_err();
         assert!(matches!(err, IoError::Parse { line: Some(2), .. }), "{err}");
         assert_eq!(
             err.to_string(),
             "t.xyz:2: expected three numbers (x y z), found \"4 5\""
         );
-        let err = read(Path::new("t.xyz"), b"1 2 3\n4 nan 6\n").unwrap_err();
+        let err = read_strict(Path::new("t.xyz"), b"1 2 3\n4 nan 6\n").unwrap_err();
         assert!(
             matches!(
                 err,

@@ -185,11 +185,18 @@ def register(
             setting is out of range.
     """
 
-def read_point_cloud(path: _PathLike) -> npt.NDArray[np.float64]:
+def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.NDArray[np.float64]:
     """Reads a point cloud as an (N, 3) float64 array.
 
     Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
-    element's x, y, z), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+    element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
+    ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+
+    Args:
+        path: The file.
+        drop_non_finite: Drop points with a NaN or infinite coordinate (organised PCL clouds
+            and range scanners mark missing returns that way) and warn how many, instead of
+            raising.
 
     Raises:
         OSError: the file cannot be read (``FileNotFoundError``, ``PermissionError``, …), its

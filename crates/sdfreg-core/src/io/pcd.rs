@@ -1,0 +1,187 @@
+//! PCD (Point Cloud Library) via pcd-rs: `DATA ascii`, `binary` and `binary_compressed`, any
+//! field types and counts; the `x`, `y`, `z` fields are read, every other field is skipped.
+
+use std::io::{BufRead, Read};
+use std::path::Path;
+
+use nalgebra::Point3;
+use pcd_rs::metas::{FieldDef, Schema, ValueKind};
+use pcd_rs::record::PcdDeserialize;
+use pcd_rs::Reader;
+
+use crate::error::IoError;
+
+/// One record as read: only the coordinates are kept.
+struct Xyz([f64; 3]);
+
+/// Which coordinate (0, 1, 2) a field holds, if any.
+fn axis(def: &FieldDef) -> Option<usize> {
+    match def.name.as_str() {
+        "x" => Some(0),
+        "y" => Some(1),
+        "z" => Some(2),
+        _ => None,
+    }
+}
+
+fn binary_value<R: Read>(reader: &mut R, kind: ValueKind) -> std::io::Result<f64> {
+    fn bytes<const N: usize, R: Read>(r: &mut R) -> std::io::Result<[u8; N]> {
+        let mut b = [0u8; N];
+        r.read_exact(&mut b)?;
+        Ok(b)
+    }
+    Ok(match kind {
+        ValueKind::I8 => i8::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::U8 => u8::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::I16 => i16::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::U16 => u16::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::I32 => i32::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::U32 => u32::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::I64 => i64::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::U64 => u64::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::F32 => f32::from_le_bytes(bytes(reader)?) as f64,
+        ValueKind::F64 => f64::from_le_bytes(bytes(reader)?),
+    })
+}
+
+impl PcdDeserialize for Xyz {
+    fn is_dynamic() -> bool {
+        true // any schema; `read` checks that x, y and z are there
+    }
+
+    fn read_spec() -> Vec<(Option<String>, ValueKind, Option<usize>)> {
+        Vec::new()
+    }
+
+    fn read_chunk<R: BufRead>(reader: &mut R, field_defs: &Schema) -> pcd_rs::Result<Self> {
+        let mut xyz = [0.0; 3];
+        for def in field_defs.iter() {
+            for k in 0..def.count {
+                let v = binary_value(reader, def.kind)?;
+                if k == 0 {
+                    if let Some(a) = axis(def) {
+                        xyz[a] = v;
+                    }
+                }
+            }
+        }
+        Ok(Xyz(xyz))
+    }
+
+    fn read_line<R: BufRead>(reader: &mut R, field_defs: &Schema) -> pcd_rs::Result<Self> {
+        let mut line = String::new();
+        reader.read_line(&mut line)?;
+        let mut tokens = line.split_ascii_whitespace();
+        let mut xyz = [0.0; 3];
+        for def in field_defs.iter() {
+            for k in 0..def.count {
+                let token = tokens.next().ok_or_else(|| {
+                    pcd_rs::Error::new_parse_error(0, &format!("field `{}` is missing", def.name))
+                })?;
+                if k == 0 {
+                    if let Some(a) = axis(def) {
+                        xyz[a] = token.parse::<f64>().map_err(|_| {
+                            pcd_rs::Error::new_parse_error(
+                                0,
+                                &format!("field `{}`: {token:?} is not a number", def.name),
+                            )
+                        })?;
+                    }
+                }
+            }
+        }
+        Ok(Xyz(xyz))
+    }
+}
+
+/// Reads the `x`, `y`, `z` fields of a PCD stream; `path` names it in errors.
+pub(super) fn read(path: &Path, reader: impl BufRead) -> Result<Vec<Point3<f64>>, IoError> {
+    let parse = |message: String| IoError::Parse {
+        path: path.into(),
+        line: None,
+        message,
+    };
+    let reader = Reader::<Xyz, _>::from_reader(reader)
+        .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
+    let fields = &reader.meta().field_defs;
+    for name in ["x", "y", "z"] {
+        if !fields.iter().any(|d| d.name == name) {
+            return Err(parse(format!("no `{name}` field in FIELDS")));
+        }
+    }
+    let mut points = Vec::with_capacity(reader.meta().num_points.min(1 << 26) as usize);
+    for (i, record) in reader.enumerate() {
+        let Xyz(p) = record.map_err(|e| parse(format!("point {i}: {e}")))?;
+        points.push(Point3::from(p));
+    }
+    Ok(points)
+}
+
+pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
+    let n = points.len();
+    let header = format!("# .PCD v0.7 - written by sdfreg\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n");
+    let mut out = header.into_bytes();
+    out.reserve(n * 24);
+    for p in points {
+        for v in [p.x, p.y, p.z] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEADER: &str = "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n";
+
+    #[test]
+    fn reads_ascii_with_extra_fields_and_counts() {
+        let text = format!("{HEADER}FIELDS x y z normal rgb\nSIZE 4 4 4 4 4\nTYPE F F F F U\nCOUNT 1 1 1 3 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n1 2 3 0 0 1 255\n-4.5 5 6e-1 1 0 0 7\n");
+        let pts = read(Path::new("a.pcd"), text.as_bytes()).unwrap();
+        assert_eq!(
+            pts,
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(-4.5, 5.0, 0.6)]
+        );
+    }
+
+    #[test]
+    fn reads_binary_doubles_after_a_padding_field() {
+        let mut b = format!("{HEADER}FIELDS intensity x y z\nSIZE 2 8 8 8\nTYPE U F F F\nCOUNT 1 1 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA binary\n").into_bytes();
+        b.extend_from_slice(&7u16.to_le_bytes());
+        for v in [1e6 + 0.25, -2.0, 0.5f64] {
+            b.extend_from_slice(&v.to_le_bytes());
+        }
+        let pts = read(Path::new("b.pcd"), &b[..]).unwrap();
+        assert_eq!(pts, vec![Point3::new(1e6 + 0.25, -2.0, 0.5)]);
+    }
+
+    #[test]
+    fn explains_what_is_wrong() {
+        let no_z = format!("{HEADER}FIELDS x y\nSIZE 4 4\nTYPE F F\nCOUNT 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n1 2\n");
+        let err = read(Path::new("c.pcd"), no_z.as_bytes())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("c.pcd") && err.contains("no `z` field"),
+            "{err}"
+        );
+        let short = format!("{HEADER}FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA binary\n").into_bytes();
+        let mut truncated = short.clone();
+        truncated.extend_from_slice(&[0u8; 14]);
+        let err = read(Path::new("d.pcd"), &truncated[..])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("d.pcd") && err.contains("point 1"), "{err}");
+        let bad = format!("{HEADER}FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n1 two 3\n");
+        let err = read(Path::new("e.pcd"), bad.as_bytes())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("point 0") && err.contains("\"two\""), "{err}");
+        let err = read(Path::new("f.pcd"), &b"not a pcd\n"[..])
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("f.pcd: not a valid PCD file"), "{err}");
+    }
+}
