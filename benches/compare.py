@@ -277,12 +277,12 @@ def plot(results: List[dict], protocols: List[str], methods: List[str], path: Pa
                 continue
             frac = np.arange(1, len(errs) + 1) / len(errs)
             style = dict(lw=2.5, color="black") if m == "sdfreg" else dict(lw=1.3)
-            ax.step(np.maximum(errs, 1e-2), frac, where="post", label=m, **style)
+            ax.step(np.maximum(errs, 1e-3), frac, where="post", label=m, **style)
         ax.set_xscale("log")
-        ax.set_xlim(1e-2, 180)
-        ax.set_ylim(0, 1.02)
+        ax.set_xlim(1e-3, 180)
+        ax.set_ylim(0, 1.06)
         ax.set_title(protocol)
-        ax.set_xlabel("rotation error (°, log)")
+        ax.set_xlabel("rotation error (°, log; exact results at the left edge)")
         ax.set_ylabel("fraction of pairs ≤ error")
         ax.grid(True, which="both", alpha=0.3)
     for ax in list(axes.flat)[len(protocols):]:
@@ -292,16 +292,42 @@ def plot(results: List[dict], protocols: List[str], methods: List[str], path: Pa
     fig.savefig(path, dpi=110)
 
 
+def matrix(summary: dict, protocols: List[str], methods: List[str], key: str) -> List[str]:
+    """One row per method, one column per protocol: `key` of the summary, the best in bold."""
+    lines = ["| method | " + " | ".join(protocols) + " |", "|---|" + "---|" * len(protocols)]
+    for m in methods:
+        cells = []
+        for p in protocols:
+            v = summary[f"{p}/{m}"][key]
+            best = min(summary[f"{p}/{mm}"][key] for mm in methods)
+            cells.append(f"**{v:.2f}**" if v - best < 5e-4 else f"{v:.2f}")
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def replot(out: Path) -> None:
+    """Re-makes cdf.png from out/results.json."""
+    data = json.loads((out / "results.json").read_text())
+    results = data["results"]
+    protocols = list(dict.fromkeys(r["protocol"] for r in results))
+    methods = list(dict.fromkeys(r["method"] for r in results))
+    plot(results, protocols, methods, out / "cdf.png")
+    print(f"written: {out / 'cdf.png'}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="sdfreg against peer registration tools")
-    parser.add_argument("--shapes", type=Path, required=True)
+    parser.add_argument("--shapes", type=Path, help="folder of .ply shapes (required unless --replot)")
     parser.add_argument("--pairs", type=int, default=36)
     parser.add_argument("--protocol", default="paper")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "target" / "compare")
     parser.add_argument("--methods", default="", help="comma-separated substrings to run only some")
+    parser.add_argument("--replot", action="store_true", help="only re-make cdf.png from --out")
     args = parser.parse_args()
-    if not args.shapes.is_dir():
+    if args.replot:
+        return replot(args.out)
+    if args.shapes is None or not args.shapes.is_dir():
         sys.exit(f"compare.py: {args.shapes}: no such folder of shapes; skipping the comparison")
     args.out.mkdir(parents=True, exist_ok=True)
     pairs_dir = make_pairs(args)
@@ -367,6 +393,10 @@ def main() -> None:
             if protocol in per:
                 mae, rmse, _, _ = per[protocol]
                 lines.append(f"| {protocol} | *{ref}, quoted* | | | | | *{mae}* | *{rmse}* | | |")
+    lines += ["", "Mean rotation error (°), best in bold:", ""]
+    lines += matrix(summary, protocols, list(methods), "rot_mean")
+    lines += ["", "Median rotation error (°), best in bold:", ""]
+    lines += matrix(summary, protocols, list(methods), "rot_median")
     table = "\n".join(lines) + "\n"
     (args.out / "table.md").write_text(table)
     (args.out / "results.json").write_text(json.dumps(

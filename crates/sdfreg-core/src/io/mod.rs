@@ -84,29 +84,61 @@ pub fn read_point_cloud_dropping_non_finite(
     Ok((points, dropped))
 }
 
+/// Parses a cloud held in memory, in `format`; `name` stands for the file in error messages.
+/// Same checks as [`read_point_cloud`] (no empty clouds, no non-finite coordinates).
+pub fn parse_point_cloud(
+    bytes: &[u8],
+    format: Format,
+    name: &Path,
+) -> Result<Vec<Point3<f64>>, IoError> {
+    let points = parse(format, name, bytes, bytes.len() as u64, false)?;
+    if let Some(index) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        return Err(IoError::NonFinite {
+            path: name.to_path_buf(),
+            line: None,
+            index,
+        });
+    }
+    Ok(points)
+}
+
 /// Reads every point of a cloud file; refuses an empty one. Text files refuse a non-finite
 /// coordinate with its line number unless `keep_non_finite`.
 fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoError> {
     let format = Format::of(path)?;
-    let io_error = |source| IoError::Io {
+    let file = std::fs::File::open(path).map_err(|source| IoError::Io {
         path: path.to_path_buf(),
         source,
-    };
+    })?;
+    let available = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+    // Streamed: a large binary file is never held in memory twice.
+    let reader = std::io::BufReader::with_capacity(1 << 20, file);
+    parse(format, path, reader, available, keep_non_finite)
+}
+
+fn parse(
+    format: Format,
+    path: &Path,
+    mut reader: impl std::io::BufRead,
+    available: u64,
+    keep_non_finite: bool,
+) -> Result<Vec<Point3<f64>>, IoError> {
     let points = match format {
-        // Streamed: a large binary PLY is never held in memory twice.
-        Format::Ply => {
-            let file = std::fs::File::open(path).map_err(io_error)?;
-            ply::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
+        Format::Ply => ply::read(path, reader)?,
+        Format::Pcd => pcd::read(path, reader, available)?,
+        Format::Xyz => {
+            let mut bytes = Vec::new();
+            reader
+                .read_to_end(&mut bytes)
+                .map_err(|source| IoError::Io {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+            xyz::read(path, &bytes, keep_non_finite)?
         }
-        Format::Pcd => {
-            let file = std::fs::File::open(path).map_err(io_error)?;
-            pcd::read(path, std::io::BufReader::with_capacity(1 << 20, file))?
-        }
-        Format::Xyz => xyz::read(
-            path,
-            &std::fs::read(path).map_err(io_error)?,
-            keep_non_finite,
-        )?,
     };
     if points.is_empty() {
         return Err(IoError::Empty {

@@ -94,13 +94,56 @@ impl PcdDeserialize for Xyz {
     }
 }
 
-/// Reads the `x`, `y`, `z` fields of a PCD stream; `path` names it in errors.
-pub(super) fn read(path: &Path, reader: impl BufRead) -> Result<Vec<Point3<f64>>, IoError> {
+/// For `DATA binary_compressed`: the block's two sizes (compressed, uncompressed) must fit the
+/// `available` bytes, so that a hostile header cannot make the reader allocate gigabytes.
+/// `head` is the start of the stream (the header and what follows).
+fn check_compressed_sizes(head: &[u8], available: u64) -> Result<(), String> {
+    const KEY: &[u8] = b"DATA binary_compressed";
+    let Some(at) = head.windows(KEY.len()).position(|w| w == KEY) else {
+        return Ok(());
+    };
+    let Some(nl) = head[at..].iter().position(|&b| b == b'\n') else {
+        return Ok(());
+    };
+    let start = at + nl + 1;
+    let Some(sizes) = head.get(start..start + 8) else {
+        return Ok(()); // too short: pcd-rs reports the truncation
+    };
+    let compressed = u32::from_le_bytes(sizes[..4].try_into().unwrap()) as u64;
+    let uncompressed = u32::from_le_bytes(sizes[4..].try_into().unwrap()) as u64;
+    let rest = available.saturating_sub(start as u64 + 8);
+    if compressed > rest {
+        return Err(format!(
+            "the binary_compressed block claims {compressed} bytes, the file has {rest} after the header"
+        ));
+    }
+    // LZF expands at most about 100-fold.
+    if uncompressed > 100 * compressed + 4096 {
+        return Err(format!(
+            "the binary_compressed block claims {uncompressed} bytes from {compressed} compressed"
+        ));
+    }
+    Ok(())
+}
+
+/// Reads the `x`, `y`, `z` fields of a PCD stream of `available` bytes; `path` names it in
+/// errors.
+pub(super) fn read(
+    path: &Path,
+    mut reader: impl BufRead,
+    available: u64,
+) -> Result<Vec<Point3<f64>>, IoError> {
     let parse = |message: String| IoError::Parse {
         path: path.into(),
         line: None,
         message,
     };
+    let head = reader.fill_buf().map_err(|source| IoError::Io {
+        path: path.into(),
+        source,
+    })?;
+    check_compressed_sizes(head, available)
+        .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
     let reader = Reader::<Xyz, _>::from_reader(reader)
         .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
     let fields = &reader.meta().field_defs;
@@ -134,12 +177,24 @@ pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
 mod tests {
     use super::*;
 
+    fn read_all(path: &Path, bytes: &[u8]) -> Result<Vec<Point3<f64>>, IoError> {
+        read(path, bytes, bytes.len() as u64)
+    }
+
+    #[test]
+    fn fuzz_regression_a_huge_compressed_size_is_refused_before_allocating() {
+        // Found by `cargo fuzz run pcd`: the header claims a 3.2 GB compressed block.
+        let bytes = include_bytes!("fuzz_regressions/pcd-huge-compressed-size.pcd");
+        let err = read_all(Path::new("f.pcd"), bytes).unwrap_err().to_string();
+        assert!(err.contains("claims") && err.contains("bytes"), "{err}");
+    }
+
     const HEADER: &str = "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n";
 
     #[test]
     fn reads_ascii_with_extra_fields_and_counts() {
         let text = format!("{HEADER}FIELDS x y z normal rgb\nSIZE 4 4 4 4 4\nTYPE F F F F U\nCOUNT 1 1 1 3 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA ascii\n1 2 3 0 0 1 255\n-4.5 5 6e-1 1 0 0 7\n");
-        let pts = read(Path::new("a.pcd"), text.as_bytes()).unwrap();
+        let pts = read_all(Path::new("a.pcd"), text.as_bytes()).unwrap();
         assert_eq!(
             pts,
             vec![Point3::new(1.0, 2.0, 3.0), Point3::new(-4.5, 5.0, 0.6)]
@@ -153,14 +208,14 @@ mod tests {
         for v in [1e6 + 0.25, -2.0, 0.5f64] {
             b.extend_from_slice(&v.to_le_bytes());
         }
-        let pts = read(Path::new("b.pcd"), &b[..]).unwrap();
+        let pts = read_all(Path::new("b.pcd"), &b[..]).unwrap();
         assert_eq!(pts, vec![Point3::new(1e6 + 0.25, -2.0, 0.5)]);
     }
 
     #[test]
     fn explains_what_is_wrong() {
         let no_z = format!("{HEADER}FIELDS x y\nSIZE 4 4\nTYPE F F\nCOUNT 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n1 2\n");
-        let err = read(Path::new("c.pcd"), no_z.as_bytes())
+        let err = read_all(Path::new("c.pcd"), no_z.as_bytes())
             .unwrap_err()
             .to_string();
         assert!(
@@ -170,16 +225,16 @@ mod tests {
         let short = format!("{HEADER}FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA binary\n").into_bytes();
         let mut truncated = short.clone();
         truncated.extend_from_slice(&[0u8; 14]);
-        let err = read(Path::new("d.pcd"), &truncated[..])
+        let err = read_all(Path::new("d.pcd"), &truncated[..])
             .unwrap_err()
             .to_string();
         assert!(err.contains("d.pcd") && err.contains("point 1"), "{err}");
         let bad = format!("{HEADER}FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 1\nDATA ascii\n1 two 3\n");
-        let err = read(Path::new("e.pcd"), bad.as_bytes())
+        let err = read_all(Path::new("e.pcd"), bad.as_bytes())
             .unwrap_err()
             .to_string();
         assert!(err.contains("point 0") && err.contains("\"two\""), "{err}");
-        let err = read(Path::new("f.pcd"), &b"not a pcd\n"[..])
+        let err = read_all(Path::new("f.pcd"), &b"not a pcd\n"[..])
             .unwrap_err()
             .to_string();
         assert!(err.starts_with("f.pcd: not a valid PCD file"), "{err}");
