@@ -120,6 +120,10 @@ pub struct RegisterArgs {
     /// file: organised PCL clouds and range scanners mark missing returns that way.
     #[arg(long)]
     pub drop_non_finite: bool,
+    /// A PLY input with faces (a mesh) is replaced by this many points sampled uniformly on its
+    /// surface (seeded by --seed) instead of its vertices; clouds are read as they are.
+    #[arg(long, value_name = "N")]
+    pub surface_points: Option<usize>,
     /// Overwrite --output / --aligned if they exist.
     #[arg(long)]
     pub force: bool,

@@ -13,7 +13,10 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix4, Point3, SMatrix, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
-use sdfreg_core::io::{read_point_cloud, read_point_cloud_dropping_non_finite, write_point_cloud};
+use sdfreg_core::io::{
+    read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_point_cloud, Format,
+};
+use sdfreg_core::mesh::sample_surface;
 use sdfreg_core::protocol::pose_errors;
 use sdfreg_core::se3::isometry_from_matrix;
 use sdfreg_core::{register_with_progress, Degeneracy, RegisterSettings, Registration, Stage};
@@ -178,6 +181,23 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         refuse_overwrite(out, &inputs, a.force)?;
     }
     let read = |path: &Path| -> Result<Vec<Point3<f64>>> {
+        if let Some(n) = a.surface_points {
+            if Format::of(path)? == Format::Ply {
+                let (vertices, triangles) = read_mesh(path)?;
+                if !triangles.is_empty() {
+                    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed);
+                    let points = sample_surface(&vertices, &triangles, n.max(1), &mut rng)
+                        .with_context(|| format!("{}: the faces have no area", path.display()))?;
+                    eprintln!(
+                        "sdfreg: {}: {} points sampled on {} triangles",
+                        path.display(),
+                        points.len(),
+                        triangles.len()
+                    );
+                    return Ok(points);
+                }
+            }
+        }
         if !a.drop_non_finite {
             return Ok(read_point_cloud(path)?);
         }

@@ -17,7 +17,7 @@
 //!
 //! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
 //! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`polish`] (the final point-to-plane steps), [`se3`]
-//! (exp/log maps), [`cloud`] (normalisation), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
+//! (exp/log maps), [`cloud`] (normalisation), [`mesh`] (surface sampling), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
 //! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
 #![warn(missing_docs)]
 
@@ -26,6 +26,7 @@ pub mod degeneracy;
 pub mod error;
 pub mod io;
 pub mod lm;
+pub mod mesh;
 pub mod mlp;
 pub mod polish;
 pub mod protocol;

@@ -84,6 +84,63 @@ pub fn read_point_cloud_dropping_non_finite(
     Ok((points, dropped))
 }
 
+/// Reads a PLY file's vertices and triangles (polygons split into fans; none for a point
+/// cloud). Refuses other formats and non-finite vertices.
+pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
+    let path = path.as_ref();
+    if Format::of(path)? != Format::Ply {
+        return Err(IoError::Parse {
+            path: path.to_path_buf(),
+            line: None,
+            message: "meshes are read from PLY files (a `face` element)".into(),
+        });
+    }
+    let file = std::fs::File::open(path).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (vertices, triangles) =
+        ply::read_mesh(path, std::io::BufReader::with_capacity(1 << 20, file))?;
+    if let Some(index) = vertices
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        return Err(IoError::NonFinite {
+            path: path.to_path_buf(),
+            line: None,
+            index,
+        });
+    }
+    Ok((vertices, triangles))
+}
+
+/// Vertices and triangles (indices into the vertices).
+pub type MeshData = (Vec<Point3<f64>>, Vec<[usize; 3]>);
+
+/// Reads a PLY mesh and samples `n` points uniformly by area on its faces (seeded) instead of
+/// using its vertices — for targets given as CAD or reconstructed meshes, whose vertices are far
+/// from uniform. Refuses files without faces or whose faces have no area.
+pub fn read_mesh_surface(
+    path: impl AsRef<Path>,
+    n: usize,
+    seed: u64,
+) -> Result<Vec<Point3<f64>>, IoError> {
+    use rand::SeedableRng;
+    let path = path.as_ref();
+    let parse = |message: &str| IoError::Parse {
+        path: path.to_path_buf(),
+        line: None,
+        message: message.into(),
+    };
+    let (vertices, triangles) = read_mesh(path)?;
+    if triangles.is_empty() {
+        return Err(parse("no faces to sample (a point cloud, not a mesh)"));
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    crate::mesh::sample_surface(&vertices, &triangles, n.max(1), &mut rng)
+        .ok_or_else(|| parse("the faces have no area"))
+}
+
 /// Parses a cloud held in memory, in `format`; `name` stands for the file in error messages.
 /// Same checks as [`read_point_cloud`] (no empty clouds, no non-finite coordinates).
 pub fn parse_point_cloud(
@@ -188,6 +245,46 @@ mod tests {
             read_point_cloud(dir.join("missing.ply")),
             Err(IoError::Io { .. })
         ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_mesh_is_sampled_on_its_faces() {
+        let dir = std::env::temp_dir().join(format!("sdfreg-mesh-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // The cube [−1, 1]³ with quad faces.
+        let mut text = String::from("ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n");
+        for i in 0..8 {
+            let c = |b: usize| if i >> b & 1 == 1 { 1 } else { -1 };
+            text += &format!("{} {} {}\n", c(0), c(1), c(2));
+        }
+        text += "4 0 1 3 2\n4 4 5 7 6\n4 0 1 5 4\n4 2 3 7 6\n4 0 2 6 4\n4 1 3 7 5\n";
+        let p = dir.join("cube.ply");
+        std::fs::write(&p, &text).unwrap();
+        let pts = read_mesh_surface(&p, 6000, 3).unwrap();
+        assert_eq!(pts.len(), 6000);
+        for axis in 0..3 {
+            let on = pts
+                .iter()
+                .filter(|q| (q[axis].abs() - 1.0).abs() < 1e-12)
+                .count();
+            assert!(
+                (on as f64 / 6000.0 - 1.0 / 3.0).abs() < 0.03,
+                "axis {axis}: {on}"
+            );
+        }
+        assert!(pts.iter().all(|q| q.coords.amax() <= 1.0 + 1e-12));
+        // A cloud has no faces; a face may not point past the vertices.
+        write_point_cloud(dir.join("cloud.ply"), &pts[..10]).unwrap();
+        let err = read_mesh_surface(dir.join("cloud.ply"), 10, 0).unwrap_err();
+        assert!(err.to_string().contains("no faces to sample"), "{err}");
+        std::fs::write(&p, text.replace("4 1 3 7 5", "4 1 3 7 9")).unwrap();
+        let err = read_mesh_surface(&p, 10, 0).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("face 5: vertex index 9 is out of range"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

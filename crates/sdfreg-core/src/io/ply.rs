@@ -24,11 +24,48 @@ fn number(p: &Property) -> Option<f64> {
     })
 }
 
-/// One element as the parser fills it: only `x`, `y`, `z` are kept (32 bytes per element, so
-/// a 5-million-point file costs 160 MB while parsing, not a map per vertex).
+/// Indices of a list property (a face's vertices), as i64.
+fn indices(p: Property) -> Option<Vec<i64>> {
+    Some(match p {
+        Property::ListChar(v) => v.into_iter().map(i64::from).collect(),
+        Property::ListUChar(v) => v.into_iter().map(i64::from).collect(),
+        Property::ListShort(v) => v.into_iter().map(i64::from).collect(),
+        Property::ListUShort(v) => v.into_iter().map(i64::from).collect(),
+        Property::ListInt(v) => v.into_iter().map(i64::from).collect(),
+        Property::ListUInt(v) => v.into_iter().map(i64::from).collect(),
+        _ => return None,
+    })
+}
+
+/// What the reader needs of a parsed element.
+trait Row: PropertyAccess {
+    /// The coordinates and which were read (bit k for coordinate k).
+    fn xyz(&self) -> ([f64; 3], u8);
+    /// A face's vertex indices (empty for an element that keeps none).
+    fn indices(&self) -> &[i64] {
+        &[]
+    }
+}
+
+/// Stores coordinate `name` into `xyz`/`seen` when it is one; returns whether it was.
+fn set_xyz(xyz: &mut [f64; 3], seen: &mut u8, name: &str, property: &Property) -> bool {
+    let k = match name {
+        "x" => 0,
+        "y" => 1,
+        "z" => 2,
+        _ => return false,
+    };
+    if let Some(v) = number(property) {
+        xyz[k] = v;
+        *seen |= 1 << k;
+    }
+    true
+}
+
+/// One element as the parser fills it for a point cloud: only `x`, `y`, `z` are kept (32 bytes
+/// per element, so a 5-million-point file costs 160 MB while parsing, not a map per vertex).
 struct Xyz {
     xyz: [f64; 3],
-    /// Bit k set once coordinate k was read as a number.
     seen: u8,
 }
 
@@ -41,29 +78,73 @@ impl PropertyAccess for Xyz {
     }
 
     fn set_property(&mut self, name: &str, property: Property) {
-        let k = match name {
-            "x" => 0,
-            "y" => 1,
-            "z" => 2,
-            _ => return,
-        };
-        if let Some(v) = number(&property) {
-            self.xyz[k] = v;
-            self.seen |= 1 << k;
+        set_xyz(&mut self.xyz, &mut self.seen, name, &property);
+    }
+}
+
+impl Row for Xyz {
+    fn xyz(&self) -> ([f64; 3], u8) {
+        (self.xyz, self.seen)
+    }
+}
+
+/// One element for a mesh: the coordinates and a face's `vertex_indices` (or `vertex_index`).
+struct MeshRow {
+    xyz: [f64; 3],
+    seen: u8,
+    indices: Vec<i64>,
+}
+
+impl PropertyAccess for MeshRow {
+    fn new() -> Self {
+        MeshRow {
+            xyz: [0.0; 3],
+            seen: 0,
+            indices: Vec::new(),
         }
     }
+
+    fn set_property(&mut self, name: &str, property: Property) {
+        if name == "vertex_indices" || name == "vertex_index" {
+            self.indices = indices(property).unwrap_or_default();
+        } else {
+            set_xyz(&mut self.xyz, &mut self.seen, name, &property);
+        }
+    }
+}
+
+impl Row for MeshRow {
+    fn xyz(&self) -> ([f64; 3], u8) {
+        (self.xyz, self.seen)
+    }
+
+    fn indices(&self) -> &[i64] {
+        &self.indices
+    }
+}
+
+/// Vertices and triangles (polygons split into fans) of a PLY stream; `path` names it in errors.
+pub(super) fn read_mesh(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
+    read_elements::<MeshRow>(path, reader)
 }
 
 /// Reads the `vertex` element's `x`, `y`, `z` from a PLY stream; `path` names it in errors.
 /// Every element is parsed (a truncated file is an error even after its vertices), but only the
 /// coordinates are kept.
-pub(super) fn read(path: &Path, mut reader: impl BufRead) -> Result<Vec<Point3<f64>>, IoError> {
+pub(super) fn read(path: &Path, reader: impl BufRead) -> Result<Vec<Point3<f64>>, IoError> {
+    Ok(read_elements::<Xyz>(path, reader)?.0)
+}
+
+fn read_elements<E: Row>(
+    path: &Path,
+    mut reader: impl BufRead,
+) -> Result<super::MeshData, IoError> {
     let parse = |message: String| IoError::Parse {
         path: path.into(),
         line: None,
         message,
     };
-    let parser = Parser::<Xyz>::new();
+    let parser = Parser::<E>::new();
     let header = parser
         .read_header(&mut reader)
         .map_err(|e| parse(format!("not a valid PLY file: {e}")))?;
@@ -79,26 +160,54 @@ pub(super) fn read(path: &Path, mut reader: impl BufRead) -> Result<Vec<Point3<f
         }
     }
     let mut points = Vec::new();
+    let mut face_rows = Vec::new();
     for (name, def) in &header.elements {
         let rows = parser
             .read_payload_for_element(&mut reader, def, &header)
             .map_err(|e| parse(format!("not a valid PLY file: element `{name}`: {e}")))?;
+        if name == "face" {
+            face_rows = rows;
+            continue;
+        }
         if name != "vertex" {
             continue;
         }
         points.reserve_exact(rows.len());
         for (i, row) in rows.iter().enumerate() {
-            if row.seen != 0b111 {
-                let k = (0..3).find(|k| row.seen & (1 << k) == 0).unwrap_or(0);
+            let (xyz, seen) = row.xyz();
+            if seen != 0b111 {
+                let k = (0..3).find(|k| seen & (1 << k) == 0).unwrap_or(0);
                 return Err(parse(format!(
                     "vertex {i}: `{}` is missing or not a number",
                     ["x", "y", "z"][k]
                 )));
             }
-            points.push(Point3::from(row.xyz));
+            points.push(Point3::from(xyz));
         }
     }
-    Ok(points)
+    let mut triangles = Vec::new();
+    for (i, face) in face_rows.iter().enumerate() {
+        let n = points.len() as i64;
+        let v = face.indices();
+        if v.is_empty() {
+            continue; // a cloud's faces are not asked for
+        }
+        if let Some(&bad) = v.iter().find(|&&k| k < 0 || k >= n) {
+            return Err(parse(format!(
+                "face {i}: vertex index {bad} is out of range (the file has {n} vertices)"
+            )));
+        }
+        if v.len() < 3 {
+            return Err(parse(format!(
+                "face {i}: {} vertex indices, a face needs at least 3",
+                v.len()
+            )));
+        }
+        for k in 1..v.len() - 1 {
+            triangles.push([v[0] as usize, v[k] as usize, v[k + 1] as usize]);
+        }
+    }
+    Ok((points, triangles))
 }
 
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
