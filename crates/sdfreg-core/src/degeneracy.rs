@@ -179,24 +179,13 @@ fn classify(e: &Vector6<f64>, c: &Vector3<f64>, rho: f64, relative: f64) -> Free
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::shapes::fibonacci_sphere;
 
     /// Points on a surface with their unit normals standing in for ∇Φ.
     fn analyse(points: &[(Point3<f64>, Vector3<f64>)]) -> Degeneracy {
         let x: Vec<Point3<f64>> = points.iter().map(|p| p.0).collect();
         let g: Vec<Vector3<f64>> = points.iter().map(|p| p.1).collect();
         Degeneracy::analyse(&x, &g, FREE_MOTION_RATIO)
-    }
-
-    fn fibonacci_sphere(n: usize) -> Vec<Vector3<f64>> {
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-                let r = (1.0 - z * z).sqrt();
-                let t = golden * i as f64;
-                Vector3::new(r * t.cos(), r * t.sin(), z)
-            })
-            .collect()
     }
 
     #[test]

@@ -410,7 +410,15 @@ fn run(
             extent: (src_hi - src_lo).max() * norm.scale,
         });
     }
-    // The kernel at a pose, with κ (see `RegisterSettings::robust`).
+    // The Geman–McClure scale from the residuals Φ of the moved source, with κ (see
+    // `RegisterSettings::robust`).
+    let adaptive_scale = |phi: &[f32], kappa: f64| {
+        let mut a: Vec<f32> = phi.iter().map(|v| v.abs()).collect();
+        let mid = a.len() / 2;
+        let median = *a.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
+        (kappa * median).max(s.robust_floor)
+    };
+    // The kernel at a pose, with κ.
     let kernel_at = |mlp: &Mlp, points: &[Point3<f64>], pose: &Isometry3<f64>, kappa: f64| match (
         s.robust_scale,
         s.robust,
@@ -419,10 +427,7 @@ fn run(
         (None, false) => Kernel::L2,
         (None, true) => {
             let (phi, _) = mlp.eval(&transformed_f32(points, pose), false);
-            let mut a: Vec<f32> = phi.iter().map(|v| v.abs()).collect();
-            let mid = a.len() / 2;
-            let median = *a.select_nth_unstable_by(mid, f32::total_cmp).1 as f64;
-            Kernel::GemanMcClure((kappa * median).max(s.robust_floor))
+            Kernel::GemanMcClure(adaptive_scale(&phi, kappa))
         }
     };
     let (kappa0, kappa1) = (s.robust_kappa_start, s.robust_kappa_end);
@@ -542,25 +547,27 @@ fn run(
     // With a robust kernel, points at |Φ| ≥ c (outside the target's coverage) are left out.
     let mut lms: Vec<Lm> = hypotheses.iter().map(|p| Lm::new(*p, &s.lm)).collect();
     for k in 0..s.alternations {
-        let kernels: Vec<Kernel> = lms
-            .iter()
-            .map(|lm| kernel_at(fit.mlp(), &src_unit, &lm.pose, kappa(k)))
-            .collect();
-        for (lm, kernel) in lms.iter().zip(&kernels) {
+        // One evaluation of Φ at the moved source serves the kernel's scale and the gate.
+        let mut kernels = Vec::with_capacity(lms.len());
+        for lm in &lms {
             let moved = transformed_f32(&src_unit, &lm.pose);
-            match kernel {
-                Kernel::GemanMcClure(c) => {
-                    let (phi, _) = fit.mlp().eval(&moved, false);
-                    let near: Vec<[f32; 3]> = moved
-                        .iter()
-                        .zip(&phi)
-                        .filter(|(_, v)| (v.abs() as f64) < *c)
-                        .map(|(x, _)| *x)
-                        .collect();
-                    fit.add_source_queries(&near);
-                }
-                Kernel::L2 => fit.add_source_queries(&moved),
+            if s.robust_scale.is_none() && !s.robust {
+                fit.add_source_queries(&moved);
+                kernels.push(Kernel::L2);
+                continue;
             }
+            let (phi, _) = fit.mlp().eval(&moved, false);
+            let c = s
+                .robust_scale
+                .unwrap_or_else(|| adaptive_scale(&phi, kappa(k)));
+            let near: Vec<[f32; 3]> = moved
+                .iter()
+                .zip(&phi)
+                .filter(|(_, v)| (v.abs() as f64) < c)
+                .map(|(x, _)| *x)
+                .collect();
+            fit.add_source_queries(&near);
+            kernels.push(Kernel::GemanMcClure(c));
         }
         fit.train(s.fit.refine_steps, s.fit.refine_lr);
         for (lm, &kernel) in lms.iter_mut().zip(&kernels) {

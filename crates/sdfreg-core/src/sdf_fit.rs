@@ -401,14 +401,9 @@ mod tests {
 
     /// Points on a sphere of radius 0.4 (unit frame).
     fn sphere(n: usize) -> Vec<[f32; 3]> {
-        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-        (0..n)
-            .map(|i| {
-                let y = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-                let r = (1.0 - y * y).sqrt();
-                let th = golden * i as f32;
-                [0.4 * r * th.cos(), 0.4 * y, 0.4 * r * th.sin()]
-            })
+        crate::shapes::fibonacci_sphere(n)
+            .iter()
+            .map(|d| [0.4 * d.x as f32, 0.4 * d.z as f32, 0.4 * d.y as f32])
             .collect()
     }
 

@@ -24,6 +24,20 @@ pub fn blob<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
         .collect()
 }
 
+/// `n` nearly evenly spread unit vectors (a Fibonacci sphere, polar axis z): the unit sphere's
+/// points, and their normals.
+pub fn fibonacci_sphere(n: usize) -> Vec<Vector3<f64>> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let t = golden * i as f64;
+            Vector3::new(r * t.cos(), r * t.sin(), z)
+        })
+        .collect()
+}
+
 /// An asymmetric bracket: the surfaces of three boxes of different sizes joined in an L with a
 /// post; about 1 across. `n` points, uniform by area.
 pub fn bracket<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {

@@ -50,16 +50,7 @@ impl Format {
 pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoError> {
     let path = path.as_ref();
     let points = read_any(path, false)?;
-    if let Some(index) = points
-        .iter()
-        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
-    {
-        return Err(IoError::NonFinite {
-            path: path.to_path_buf(),
-            line: None,
-            index,
-        });
-    }
+    refuse_non_finite(&points, path)?;
     Ok(points)
 }
 
@@ -101,16 +92,7 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
     })?;
     let (vertices, triangles) =
         ply::read_mesh(path, std::io::BufReader::with_capacity(1 << 20, file))?;
-    if let Some(index) = vertices
-        .iter()
-        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
-    {
-        return Err(IoError::NonFinite {
-            path: path.to_path_buf(),
-            line: None,
-            index,
-        });
-    }
+    refuse_non_finite(&vertices, path)?;
     Ok((vertices, triangles))
 }
 
@@ -149,17 +131,35 @@ pub fn parse_point_cloud(
     name: &Path,
 ) -> Result<Vec<Point3<f64>>, IoError> {
     let points = parse(format, name, bytes, bytes.len() as u64, false)?;
-    if let Some(index) = points
+    refuse_non_finite(&points, name)?;
+    Ok(points)
+}
+
+/// The first point with a NaN or infinite coordinate, as an error naming `path`.
+fn refuse_non_finite(points: &[Point3<f64>], path: &Path) -> Result<(), IoError> {
+    match points
         .iter()
         .position(|p| !p.coords.iter().all(|v| v.is_finite()))
     {
-        return Err(IoError::NonFinite {
-            path: name.to_path_buf(),
+        Some(index) => Err(IoError::NonFinite {
+            path: path.to_path_buf(),
             line: None,
             index,
-        });
+        }),
+        None => Ok(()),
     }
-    Ok(points)
+}
+
+/// `header` followed by the points as little-endian f64 triples (binary PLY and PCD bodies).
+fn with_le_doubles(header: String, points: &[Point3<f64>]) -> Vec<u8> {
+    let mut out = header.into_bytes();
+    out.reserve(points.len() * 24);
+    for p in points {
+        for v in [p.x, p.y, p.z] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out
 }
 
 /// Reads every point of a cloud file; refuses an empty one. Text files refuse a non-finite

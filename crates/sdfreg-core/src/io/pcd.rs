@@ -163,14 +163,7 @@ pub(super) fn read(
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
     let n = points.len();
     let header = format!("# .PCD v0.7 - written by sdfreg\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n");
-    let mut out = header.into_bytes();
-    out.reserve(n * 24);
-    for p in points {
-        for v in [p.x, p.y, p.z] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    out
+    super::with_le_doubles(header, points)
 }
 
 #[cfg(test)]

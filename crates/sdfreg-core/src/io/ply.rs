@@ -212,14 +212,7 @@ fn read_elements<E: Row>(
 
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
     let header = format!("ply\nformat binary_little_endian 1.0\ncomment written by sdfreg\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n", points.len());
-    let mut out = header.into_bytes();
-    out.reserve(points.len() * 24);
-    for p in points {
-        for v in [p.x, p.y, p.z] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    out
+    super::with_le_doubles(header, points)
 }
 
 #[cfg(test)]
