@@ -12,9 +12,15 @@
 //! 2. snap: residual `nᵢ·(xᵢ − qᵢ)` to the nearest target point `qᵢ` itself, kept only when it
 //!    lays the source onto the target's own points (a copy or a subset of the target cloud).
 //!
-//! Both use the Jacobian row `[xᵢ × nᵢ; nᵢ]` (the same left twist as the SDF's LM),
-//! Geman–McClure weights with the scale from the median |r|, and leave out the points farther
-//! than [`PolishSettings::max_distance`] from the target (outside its coverage). Per-point terms are summed in a fixed order: results do not depend on the threads.
+//! Both use the Jacobian row `[xᵢ × nᵢ; nᵢ]` (the same left twist as the SDF's LM) and
+//! Geman–McClure weights, and leave out the points farther than
+//! [`PolishSettings::max_distance`] from the target (outside its coverage). The kernel's scale is
+//! 3 robust standard deviations of |r|; in stage 1 it is re-estimated on the residuals under it
+//! until it settles, because source points near the edge of the target's coverage (half of a
+//! partial scan's points) inflate the plain median: on the bunny's 49 %-overlap pair
+//! bun180→bun090 the polish stopped at 2.0° with the median and reaches 0.28° with the
+//! re-estimate, in ≤ 50 iterations (15 got 1.9°, 30 got 0.8°). Per-point terms are summed in a
+//! fixed order: results do not depend on the threads.
 //!
 //! The polish only refines: if it would move the source points by more than
 //! [`PolishSettings::max_shift`] (RMS), the SDF pose is kept (the polish had latched onto the
@@ -39,7 +45,9 @@ pub const SNAP_RATIO: f64 = 0.01;
 /// largest bounding-box side).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PolishSettings {
-    /// Gauss–Newton iterations at most; 0 disables the polish. Default 15.
+    /// Gauss–Newton iterations at most, per stage; 0 disables the polish. Default 50 (partial
+    /// overlap converges slowly; on noisy independently sampled ModelNet pairs 15 did slightly
+    /// better: median 0.83° against 0.93°).
     pub iterations: usize,
     /// Target points (nearest to a moved source point) that the local plane is fitted to.
     /// Default 5 (measured on 36 ModelNet pairs per protocol: 3–40 tried; 5 was best on the
@@ -54,7 +62,7 @@ pub struct PolishSettings {
 impl Default for PolishSettings {
     fn default() -> Self {
         Self {
-            iterations: 15,
+            iterations: 50,
             neighbours: 5,
             max_distance: 0.05,
             max_shift: 0.05,
@@ -120,6 +128,7 @@ fn gauss_newton(
     source: &[Point3<f64>],
     pose: Isometry3<f64>,
     iterations: usize,
+    rescale: bool,
     residual: impl Fn(&Point3<f64>) -> Option<(f64, Vector3<f64>)> + Sync,
 ) -> (Isometry3<f64>, usize) {
     let mut pose = pose;
@@ -140,7 +149,12 @@ fn gauss_newton(
         }
         let mut abs: Vec<f64> = used.iter().map(|t| t.0.abs()).collect();
         abs.sort_by(f64::total_cmp);
-        let c = (3.0 * 1.4826 * abs[abs.len() / 2]).max(1e-9);
+        let median_scale = 3.0 * 1.4826 * abs[abs.len() / 2];
+        let c = if rescale {
+            inlier_scale(&abs, median_scale)
+        } else {
+            median_scale.max(1e-9)
+        };
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
         for (r, j) in used {
@@ -165,6 +179,28 @@ fn gauss_newton(
         }
     }
     (pose, done)
+}
+
+/// Geman–McClure scale for the sorted residual magnitudes `abs`: 3 robust standard deviations
+/// (1.4826 × median), re-estimated on the residuals below the previous scale until it settles.
+/// The plain median is inflated when half the source lies outside the target's coverage
+/// (a partial scan's boundary points within the distance gate); the re-estimate is not.
+fn inlier_scale(abs: &[f64], median_scale: f64) -> f64 {
+    let mut c = median_scale;
+    for _ in 0..20 {
+        let n = abs.partition_point(|&a| a < c);
+        if n < 6 {
+            break;
+        }
+        // The median of a Gaussian truncated at c is below the untruncated one: for c ≥ 3σ
+        // by under 2 %, which the loop's fixed point absorbs.
+        let next = 3.0 * 1.4826 * abs[n / 2];
+        if next >= c * 0.999 {
+            break;
+        }
+        c = next;
+    }
+    c.max(1e-9)
 }
 
 /// Median over `points` of the distance to the nearest target point (excluding a point's own
@@ -196,7 +232,7 @@ pub fn polish(
     let start = *pose;
     let max_d2 = s.max_distance * s.max_distance;
     let k = s.neighbours;
-    let (mut pose, mut iterations) = gauss_newton(source, start, s.iterations, |x| {
+    let (mut pose, mut iterations) = gauss_newton(source, start, s.iterations, true, |x| {
         local_plane(target, tree, x, k, max_d2)
     });
     // Snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
@@ -208,7 +244,7 @@ pub fn polish(
     if s.iterations > 0 {
         let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
             (0..target.len()).map(|_| OnceLock::new()).collect();
-        let (candidate, n) = gauss_newton(source, pose, s.iterations, |x| {
+        let (candidate, n) = gauss_newton(source, pose, s.iterations, false, |x| {
             let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
             if nn.distance as f64 > max_d2 {
                 return None;
@@ -274,6 +310,37 @@ mod tests {
         let err = truth.inverse() * out.pose;
         assert!(
             err.rotation.angle().to_degrees() < 0.01 && err.translation.vector.norm() < 1e-4,
+            "{}° {}",
+            err.rotation.angle().to_degrees(),
+            err.translation.vector.norm()
+        );
+    }
+
+    #[test]
+    fn points_near_the_edge_of_coverage_do_not_pull() {
+        // Half the source lies 1–4 % beside the target (inside the distance gate, as a partial
+        // scan's points beyond the target's edge do), all on one side: with the plain median
+        // as the kernel's scale they drag the pose towards them.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(6);
+        let target: Vec<[f32; 3]> = crate::shapes::blob(4000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32 * 0.8, p.y as f32 * 0.8, p.z as f32 * 0.8])
+            .collect();
+        let tree = build_tree(&target);
+        let mut source: Vec<Point3<f64>> = target[..2000]
+            .iter()
+            .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            .collect();
+        source.extend(target[2000..].iter().enumerate().map(|(i, p)| {
+            let lift = 0.01 + 0.03 * (i % 100) as f64 / 100.0;
+            Point3::new(p[0] as f64 + lift, p[1] as f64, p[2] as f64 + 0.5 * lift)
+        }));
+        let start = exp_se3(&Vector6::new(0.004, -0.003, 0.002, 0.002, -0.001, 0.001));
+        let out = polish(&source, &target, &tree, &start, &PolishSettings::default());
+        assert!(!out.undone && !out.snapped);
+        let err = out.pose;
+        assert!(
+            err.rotation.angle().to_degrees() < 0.03 && err.translation.vector.norm() < 1e-4,
             "{}° {}",
             err.rotation.angle().to_degrees(),
             err.translation.vector.norm()

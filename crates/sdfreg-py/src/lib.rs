@@ -178,7 +178,7 @@ register_function! {
     max_tries: i64 = 6 => lm.max_tries,
     rotation_tolerance: f64 = 1e-5 => lm.rotation_tolerance,
     translation_tolerance: f64 = 1e-5 => lm.translation_tolerance,
-    polish_iterations: i64 = 15 => polish.iterations,
+    polish_iterations: i64 = 50 => polish.iterations,
     polish_neighbours: i64 = 5 => polish.neighbours,
     polish_max_distance: f64 = 0.05 => polish.max_distance,
     polish_max_shift: f64 = 0.05 => polish.max_shift,

@@ -138,7 +138,7 @@ def register(
     max_tries: int = 6,
     rotation_tolerance: float = 1e-5,
     translation_tolerance: float = 1e-5,
-    polish_iterations: int = 15,
+    polish_iterations: int = 50,
     polish_neighbours: int = 5,
     polish_max_distance: float = 0.05,
     polish_max_shift: float = 0.05,
