@@ -19,7 +19,9 @@ use sdfreg_core::io::{
 use sdfreg_core::mesh::sample_surface;
 use sdfreg_core::protocol::pose_errors;
 use sdfreg_core::se3::isometry_from_matrix;
-use sdfreg_core::{register_with_progress, Degeneracy, RegisterSettings, Registration, Stage};
+use sdfreg_core::{
+    register_with_progress, Degeneracy, RegisterSettings, Registration, Role, Stage,
+};
 
 use args::{Cli, Command, DemoArgs, RegisterArgs};
 
@@ -33,7 +35,16 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("sdfreg: {}", format!("{e:#}").replace('\n', " "));
+            // One line: the error and each cause that adds something (an I/O error's cause is
+            // often already in its message).
+            let mut line = e.to_string();
+            for cause in e.chain().skip(1) {
+                let text = cause.to_string();
+                if !line.contains(&text) {
+                    line = format!("{line}: {text}");
+                }
+            }
+            eprintln!("sdfreg: {}", line.replace('\n', " "));
             ExitCode::from(2)
         }
     }
@@ -215,7 +226,17 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     let target = read(&a.target)?;
     let init = a.init.as_deref().map(read_matrix).transpose()?;
     let settings = a.common.settings();
-    let r = register_with_bar(&source, &target, init.as_ref(), &settings)?;
+    let r = register_with_bar(&source, &target, init.as_ref(), &settings).map_err(|e| {
+        // Name the file a cloud error is about.
+        let role = e
+            .downcast_ref::<sdfreg_core::Error>()
+            .and_then(|e| e.role());
+        match role {
+            Some(Role::Source) => e.context(a.source.display().to_string()),
+            Some(Role::Target) => e.context(a.target.display().to_string()),
+            None => e,
+        }
+    })?;
     let m = r.matrix();
     match &a.output {
         Some(path)

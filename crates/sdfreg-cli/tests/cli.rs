@@ -121,38 +121,107 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
         .contains("refusing to write the output over an input"));
 }
 
+/// PLY text of `rows` (x y z lines) under a header declaring `declared` float vertices.
+fn ply_ascii(declared: usize, rows: &str) -> Vec<u8> {
+    format!("ply\nformat ascii 1.0\nelement vertex {declared}\nproperty float x\nproperty float y\nproperty float z\nend_header\n{rows}").into_bytes()
+}
+
+/// Binary PLY of `n` float vertices, cut to `keep` body bytes.
+fn ply_binary(big_endian: bool, n: usize, keep: usize) -> Vec<u8> {
+    let order = if big_endian { "big" } else { "little" };
+    let mut b = format!("ply\nformat binary_{order}_endian 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n").into_bytes();
+    let body: Vec<u8> = (0..n * 3)
+        .flat_map(|i| {
+            let v = (i as f32 * 0.37).sin();
+            if big_endian {
+                v.to_be_bytes()
+            } else {
+                v.to_le_bytes()
+            }
+        })
+        .collect();
+    b.extend_from_slice(&body[..keep.min(body.len())]);
+    b
+}
+
+/// Every kind of bad input tried: exit code 2 and one line naming the file, the place (line or
+/// byte) and what was expected. `cargo test -p sdfreg-cli --test cli bad_input -- --nocapture`
+/// prints the table of messages.
 #[test]
-fn bad_input_exits_2_with_one_line_naming_the_file() {
+fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
     let dir = tempfile::tempdir().unwrap();
     pair(dir.path());
-    let bad = dir.path().join("bad.xyz");
-    std::fs::write(&bad, "1 2 3\n4 five 6\n").unwrap();
-    let cases: Vec<(Vec<std::ffi::OsString>, &str)> = vec![
-        (
-            vec![bad.clone().into(), dir.path().join("tgt.ply").into()],
-            "bad.xyz:2: expected three numbers",
-        ),
-        (
-            vec![
-                dir.path().join("missing.ply").into(),
-                dir.path().join("tgt.ply").into(),
-            ],
-            "missing.ply",
-        ),
-        (
-            vec![
-                dir.path().join("src.obj").into(),
-                dir.path().join("tgt.ply").into(),
-            ],
-            "unknown point-cloud format",
-        ),
+    let rows: String = (0..50)
+        .map(|i| {
+            format!(
+                "{} {} {}\n",
+                i as f64 * 0.1,
+                (i * i % 7) as f64,
+                (i % 5) as f64
+            )
+        })
+        .collect();
+    let rows_with = |k: usize, line: &str| -> String {
+        let mut v: Vec<&str> = rows.lines().collect();
+        v[k] = line;
+        v.join("\n") + "\n"
+    };
+    let pcd = |body: &[u8]| -> Vec<u8> {
+        let mut b = b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 50\nHEIGHT 1\nPOINTS 50\nDATA binary\n".to_vec();
+        b.extend_from_slice(body);
+        b
+    };
+    // (case, file name, contents (None: not created), expected fragments of the message)
+    let cases: Vec<(&str, &str, Option<Vec<u8>>, Vec<&str>)> = vec![
+        ("empty PLY", "empty.ply", Some(vec![]), vec!["empty.ply", "no points"]),
+        ("empty XYZ", "empty.xyz", Some(vec![]), vec!["empty.xyz", "no points"]),
+        ("empty PCD", "empty.pcd", Some(vec![]), vec!["empty.pcd", "no points"]),
+        ("PLY header only (ascii)", "header.ply", Some(ply_ascii(50, "")), vec!["header.ply:8", "ends after 0 of the 50 `vertex` rows"]),
+        ("PLY header only (binary)", "header_bin.ply", Some(ply_binary(false, 50, 0)), vec!["byte 116", "row 0", "50 rows of 12 bytes"]),
+        ("truncated binary PLY (LE)", "cut_le.ply", Some(ply_binary(false, 50, 593)), vec!["byte 709", "row 49", "starts at byte 116"]),
+        ("truncated binary PLY (BE)", "cut_be.ply", Some(ply_binary(true, 50, 580)), vec!["byte 693", "row 48"]),
+        ("PLY declares more rows", "more.ply", Some(ply_ascii(60, &rows)), vec!["more.ply:58", "50 of the 60"]),
+        ("PLY declares fewer rows", "fewer.ply", Some(ply_ascii(40, &rows)), vec!["fewer.ply:48", "data after the last element", "40 `vertex`"]),
+        ("binary PLY with extra bytes", "extra.ply", Some([ply_binary(false, 50, 600), b"junk".to_vec()].concat()), vec!["byte 716", "data after the last element"]),
+        ("PLY row not numbers", "token.ply", Some(ply_ascii(50, &rows_with(20, "1 two 3"))), vec!["token.ply:28", "row 20", "expected 3 numbers", "\"1 two 3\""]),
+        ("PLY without z", "noz.ply", Some(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n".to_vec()), vec!["noz.ply", "no `z` property"]),
+        ("not a PLY", "text.ply", Some(b"hello\n".to_vec()), vec!["text.ply:1", "magic number"]),
+        ("NaN in XYZ", "nan.xyz", Some(rows_with(10, "1 nan 2").into_bytes()), vec!["nan.xyz:11", "point 10", "non-finite"]),
+        ("Inf in binary PLY", "inf.ply", Some({ let mut b = ply_binary(false, 50, 600); let n = b.len(); b[n - 4..].copy_from_slice(&f32::INFINITY.to_le_bytes()); b }), vec!["inf.ply", "point 49", "non-finite"]),
+        ("XYZ line of two numbers", "two.xyz", Some(rows_with(10, "1 2").into_bytes()), vec!["two.xyz:11", "expected three numbers"]),
+        ("binary junk as XYZ", "junk.xyz", Some((0..=255u8).cycle().take(1024).collect()), vec!["junk.xyz", "not UTF-8"]),
+        ("truncated binary PCD", "cut.pcd", Some(pcd(&[0u8; 591])), vec!["cut.pcd", "byte 687", "point 49 of the 50"]),
+        ("PCD without z", "noz.pcd", Some(b"VERSION 0.7\nFIELDS x y\nSIZE 4 4\nTYPE F F\nCOUNT 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2\n".to_vec()), vec!["noz.pcd", "no `z` field"]),
+        ("fewer than 10 points", "few.xyz", Some(rows.lines().take(5).map(|l| format!("{l}\n")).collect::<String>().into_bytes()), vec!["few.xyz", "5 points; at least 10"]),
+        ("one repeated point", "same.xyz", Some("1 2 3\n".repeat(50).into_bytes()), vec!["same.xyz", "no extent"]),
+        ("unknown extension", "cloud.obj", Some(b"v 1 2 3\n".to_vec()), vec!["cloud.obj", "unknown point-cloud format", ".ply, .pcd"]),
+        ("missing file", "missing.ply", None, vec!["missing.ply", "No such file"]),
+        ("a directory", "folder.ply", None, vec!["folder.ply", "a directory, not a file"]),
     ];
-    for (args, expected) in cases {
-        let out = sdfreg().arg("register").args(&args).output().unwrap();
+    std::fs::create_dir(dir.path().join("folder.ply")).unwrap();
+    println!("| case | message (exit code 2) |\n|---|---|");
+    for (case, name, contents, expected) in cases {
+        let path = dir.path().join(name);
+        if let Some(bytes) = contents {
+            std::fs::write(&path, bytes).unwrap();
+        }
+        let out = sdfreg()
+            .arg("register")
+            .arg(&path)
+            .arg(dir.path().join("tgt.ply"))
+            .output()
+            .unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(2), "{err}");
-        assert!(err.contains(expected), "expected {expected:?} in {err:?}");
-        assert_eq!(err.trim_end().lines().count(), 1, "one line: {err:?}");
+        let line = err
+            .trim_end()
+            .replace(&format!("{}/", dir.path().display()), "");
+        println!("| {case} | `{line}` |");
+        assert_eq!(out.status.code(), Some(2), "{case}: {err}");
+        for e in expected {
+            assert!(line.contains(e), "{case}: expected {e:?} in {line:?}");
+        }
+        assert_eq!(line.lines().count(), 1, "{case}: one line: {err:?}");
+        assert!(!err.contains("panicked"), "{case}: {err}");
     }
     let init = dir.path().join("init.txt");
     std::fs::write(&init, "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();

@@ -68,6 +68,18 @@ pub enum Error {
     ThreadPool(String),
 }
 
+impl Error {
+    /// The cloud the error is about, when it is about one.
+    pub fn role(&self) -> Option<Role> {
+        match self {
+            Error::TooFewPoints { role, .. }
+            | Error::NonFinite { role, .. }
+            | Error::NoExtent { role, .. } => Some(*role),
+            _ => None,
+        }
+    }
+}
+
 /// Why a point cloud could not be read or written.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -81,7 +93,7 @@ pub enum IoError {
         source: std::io::Error,
     },
     /// The extension names no supported format.
-    #[error("{path}: unknown point-cloud format {extension:?} (expected .ply, .xyz, .txt, .csv)")]
+    #[error("{path}: unknown point-cloud format {extension:?} (expected .ply, .pcd, .xyz, .txt, .csv or .pts)")]
     UnknownFormat {
         /// The file.
         path: PathBuf,

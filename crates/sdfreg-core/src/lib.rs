@@ -16,7 +16,8 @@
 //! ```
 //!
 //! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
-//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`polish`] (the final point-to-plane steps), [`se3`]
+//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`polish`] (the final point-to-plane steps), [`shift_search`] (translations the SDF's valley
+//! hides), [`se3`]
 //! (exp/log maps), [`cloud`] (normalisation), [`mesh`] (surface sampling), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
 //! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
 #![warn(missing_docs)]
@@ -34,6 +35,7 @@ pub mod register;
 pub mod sdf_fit;
 pub mod se3;
 pub mod shapes;
+pub mod shift_search;
 
 pub use degeneracy::{Degeneracy, FreeMotion, MotionKind};
 pub use error::{Error, IoError, Role};
@@ -44,3 +46,4 @@ pub use register::{
     register, register_with_progress, RegisterSettings, Registration, Stage, StopReason,
 };
 pub use sdf_fit::FitSettings;
+pub use shift_search::ShiftSearchSettings;

@@ -14,7 +14,10 @@
 //!    worse are dropped, and at the end the best-fitting one is kept;
 //! 5. final LM steps on the frozen Φ until converged;
 //! 6. a robust point-to-plane polish against the target points ([`crate::polish`]);
-//! 7. map the pose back to the user's frame and measure fitness, inlier RMSE, JᵀJ and the
+//! 7. a search for translations that lay clearly more source points onto the target (a slide
+//!    along a scene's walls that the smooth Φ does not see; [`crate::shift_search`]), each
+//!    polished, kept only on a fitness gain;
+//! 8. map the pose back to the user's frame and measure fitness, inlier RMSE, JᵀJ and the
 //!    motions the data leave free ([`crate::degeneracy`]) there.
 //!
 //! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
@@ -37,7 +40,8 @@ use crate::error::{Error, Role};
 use crate::lm::{jacobian_row, Kernel, Lm, LmSettings, StepOutcome};
 use crate::mlp::{Mlp, MlpSettings};
 use crate::polish::{polish, PolishSettings};
-use crate::sdf_fit::{FitSettings, SdfFitter};
+use crate::sdf_fit::{FitSettings, SdfFitter, Tree};
+use crate::shift_search::{occupancy_peaks, ShiftSearchSettings};
 
 /// Fewest points accepted in either cloud.
 pub const MIN_POINTS: usize = 10;
@@ -54,6 +58,9 @@ pub struct RegisterSettings {
     pub lm: LmSettings,
     /// The final point-to-plane polish against the target points ([`crate::polish`]).
     pub polish: PolishSettings,
+    /// The search for translations that lay more source points onto the target than the SDF's
+    /// pose does ([`crate::shift_search`]).
+    pub shift_search: ShiftSearchSettings,
     /// Coarse-to-fine alternations of SDF refinement and LM steps. Default 10.
     pub alternations: usize,
     /// LM steps per alternation. Default 2.
@@ -124,6 +131,7 @@ impl Default for RegisterSettings {
             fit: FitSettings::default(),
             lm: LmSettings::default(),
             polish: PolishSettings::default(),
+            shift_search: ShiftSearchSettings::default(),
             alternations: 10,
             lm_steps_per_alternation: 2,
             final_lm_steps: 10,
@@ -178,11 +186,21 @@ impl RegisterSettings {
         if p.neighbours < 3 {
             return bad("polish.neighbours", "a local plane needs at least 3 points");
         }
-        if !(p.max_distance > 0.0 && p.max_shift >= 0.0) {
+        if !(p.max_distance > 0.0 && p.max_shift >= 0.0 && p.near_spacings >= 0.0) {
             return bad(
                 "polish.max_*",
-                "max_distance must be positive, max_shift ≥ 0",
+                "max_distance must be positive, max_shift and near_spacings ≥ 0",
             );
+        }
+        let h = &self.shift_search;
+        if !(h.radius >= 0.0 && h.radius.is_finite() && h.voxel > 0.0 && h.voxel.is_finite()) {
+            return bad(
+                "shift_search.*",
+                "radius must be ≥ 0 and voxel positive, both finite",
+            );
+        }
+        if !(0.0..=1.0).contains(&h.min_gain) {
+            return bad("shift_search.min_gain", "must be in [0, 1]");
         }
         if !(0.0..1.0).contains(&self.free_motion_ratio) {
             return bad("free_motion_ratio", "must be in [0, 1)");
@@ -327,6 +345,16 @@ fn nn_score(
         .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
         .sum();
     sum / points.len().max(1) as f64
+}
+
+/// Fraction of the (already moved) `points` within `sqrt(thr2)` of a target point.
+fn inlier_fraction(tree: &Tree, points: &[[f32; 3]], thr2: f64) -> f64 {
+    let thr2 = thr2 as f32;
+    let n = points
+        .par_iter()
+        .filter(|x| tree.nearest_one::<SquaredEuclidean>(x).distance <= thr2)
+        .count();
+    n as f64 / points.len().max(1) as f64
 }
 
 /// Index of the candidate with the least rotation among those whose score is within
@@ -616,7 +644,22 @@ fn run(
         }
     }
 
-    let pose_unit = polish(&src_unit, fit.target(), fit.tree(), &lm.pose, &s.polish).pose;
+    let mut pose_unit = polish(&src_unit, fit.target(), fit.tree(), &lm.pose, &s.polish).pose;
+    // Translations that lay clearly more source points onto the target (a slide along a
+    // scene's walls that the smooth Φ does not see), each polished, kept on a fitness gain.
+    let thr2 = s.inlier_distance * s.inlier_distance;
+    let moved = transformed_f32(&src_unit, &pose_unit);
+    let base = inlier_fraction(fit.tree(), &moved, thr2);
+    let mut best = base + s.shift_search.min_gain;
+    for peak in occupancy_peaks(&moved, fit.target(), &s.shift_search) {
+        let start = Translation3::from(peak.offset) * pose_unit;
+        let candidate = polish(&src_unit, fit.target(), fit.tree(), &start, &s.polish).pose;
+        let f = inlier_fraction(fit.tree(), &transformed_f32(&src_unit, &candidate), thr2);
+        if f >= best {
+            best = f;
+            pose_unit = candidate;
+        }
+    }
 
     // Quality measures in the user's frame.
     let moved = transformed_f32(&src_unit, &pose_unit);

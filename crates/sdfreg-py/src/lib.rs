@@ -90,6 +90,10 @@ macro_rules! register_function {
         /// ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
         /// ``polish_*``: the final point-to-plane steps on the target points
         /// (``polish_iterations=0`` turns them off).
+        /// ``shift_search_*``: translations (within ``shift_search_radius``, on a grid of
+        /// ``shift_search_voxel``) that lay more source points onto the target than the SDF's pose; the
+        /// best ``shift_search_candidates`` are polished, and one is kept if it raises the fitness by
+        /// ``shift_search_min_gain`` (``shift_search_radius=0`` turns it off).
         ///
         /// Returns:
         ///     The :class:`Registration`.
@@ -182,6 +186,11 @@ register_function! {
     polish_neighbours: i64 = 5 => polish.neighbours,
     polish_max_distance: f64 = 0.05 => polish.max_distance,
     polish_max_shift: f64 = 0.05 => polish.max_shift,
+    polish_near_spacings: f64 = 3.0 => polish.near_spacings,
+    shift_search_radius: f64 = 0.3 => shift_search.radius,
+    shift_search_voxel: f64 = 0.02 => shift_search.voxel,
+    shift_search_candidates: i64 = 4 => shift_search.candidates,
+    shift_search_min_gain: f64 = 0.02 => shift_search.min_gain,
 }
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.

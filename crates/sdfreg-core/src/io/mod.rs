@@ -170,7 +170,22 @@ fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoEr
         path: path.to_path_buf(),
         source,
     })?;
-    let available = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX);
+    let meta = file.metadata().ok();
+    if meta.as_ref().is_some_and(|m| m.is_dir()) {
+        return Err(IoError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::IsADirectory,
+                "a directory, not a file",
+            ),
+        });
+    }
+    let available = meta.map_or(u64::MAX, |m| m.len());
+    if available == 0 {
+        return Err(IoError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
     // Streamed: a large binary file is never held in memory twice.
     let reader = std::io::BufReader::with_capacity(1 << 20, file);
     parse(format, path, reader, available, keep_non_finite)

@@ -5,7 +5,7 @@ use std::io::{BufRead, Read};
 use std::path::Path;
 
 use nalgebra::Point3;
-use pcd_rs::metas::{FieldDef, Schema, ValueKind};
+use pcd_rs::metas::{DataKind, FieldDef, Schema, ValueKind};
 use pcd_rs::record::PcdDeserialize;
 use pcd_rs::Reader;
 
@@ -144,6 +144,13 @@ pub(super) fn read(
     })?;
     check_compressed_sizes(head, available)
         .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
+    // Where the body starts (after the DATA line), for byte offsets in errors.
+    let body = head.windows(5).position(|w| w == b"DATA ").and_then(|at| {
+        head[at..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map(|nl| at + nl + 1)
+    });
     let reader = Reader::<Xyz, _>::from_reader(reader)
         .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
     let fields = &reader.meta().field_defs;
@@ -152,9 +159,31 @@ pub(super) fn read(
             return Err(parse(format!("no `{name}` field in FIELDS")));
         }
     }
-    let mut points = Vec::with_capacity(reader.meta().num_points.min(1 << 26) as usize);
+    let declared = reader.meta().num_points;
+    let record: u64 = fields
+        .iter()
+        .map(|d| d.kind.byte_size() as u64 * d.count)
+        .sum();
+    // In a binary body, point i starts at a known byte.
+    let binary = matches!(reader.meta().data, DataKind::Binary);
+    let place = |i: usize| match (binary, body) {
+        (true, Some(b)) => format!(
+            "byte {}: point {i} of the {declared} declared ({record} bytes each, from byte {b})",
+            b as u64 + i as u64 * record
+        ),
+        _ => format!("point {i} of the {declared} declared"),
+    };
+    let mut points = Vec::with_capacity(declared.min(1 << 26) as usize);
     for (i, record) in reader.enumerate() {
-        let Xyz(p) = record.map_err(|e| parse(format!("point {i}: {e}")))?;
+        let Xyz(p) = record.map_err(|e| {
+            let e = e.to_string();
+            let what = if e.contains("fill whole buffer") {
+                "the file ends inside it"
+            } else {
+                &e
+            };
+            parse(format!("{}: {what}", place(i)))
+        })?;
         points.push(Point3::from(p));
     }
     Ok(points)

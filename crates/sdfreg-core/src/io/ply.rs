@@ -1,12 +1,16 @@
 //! PLY via ply-rs: ascii and binary (both endiannesses), any numeric property type; the
 //! `vertex` element's `x`, `y`, `z` are read and every other property or element is ignored.
+//!
+//! Errors name the place: the line for the header and ascii bodies, the byte offset for binary
+//! bodies (counted by [`Counting`] as the parser consumes the stream), and what the header
+//! declared. Data after the last declared element is an error (the counts are wrong).
 
-use std::io::BufRead;
+use std::io::{BufRead, Read};
 use std::path::Path;
 
 use nalgebra::Point3;
 use ply_rs_bw::parser::Parser;
-use ply_rs_bw::ply::{Property, PropertyAccess};
+use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
 
 use crate::error::IoError;
 
@@ -135,19 +139,106 @@ pub(super) fn read(path: &Path, reader: impl BufRead) -> Result<Vec<Point3<f64>>
     Ok(read_elements::<Xyz>(path, reader)?.0)
 }
 
-fn read_elements<E: Row>(
-    path: &Path,
-    mut reader: impl BufRead,
-) -> Result<super::MeshData, IoError> {
-    let parse = |message: String| IoError::Parse {
+/// A stream that counts the bytes and, while `lines` is on, the line ends the parser consumed.
+struct Counting<R> {
+    inner: R,
+    bytes: u64,
+    line_ends: u64,
+    lines: bool,
+}
+
+impl<R: BufRead> Counting<R> {
+    fn count(&mut self, consumed: usize) {
+        self.bytes += consumed as u64;
+    }
+}
+
+impl<R: BufRead> Read for Counting<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if self.lines {
+            self.line_ends += buf[..n].iter().filter(|&&b| b == b'\n').count() as u64;
+        }
+        self.count(n);
+        Ok(n)
+    }
+}
+
+impl<R: BufRead> BufRead for Counting<R> {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        self.inner.fill_buf()
+    }
+
+    fn consume(&mut self, amt: usize) {
+        if self.lines {
+            // The bytes consumed are those fill_buf returned; this call does no I/O.
+            if let Ok(buf) = self.inner.fill_buf() {
+                let n = amt.min(buf.len());
+                self.line_ends += buf[..n].iter().filter(|&&b| b == b'\n').count() as u64;
+            }
+        }
+        self.inner.consume(amt);
+        self.count(amt);
+    }
+}
+
+/// Bytes per row of an element without list properties.
+fn row_size(def: &ElementDef) -> Option<u64> {
+    def.properties
+        .values()
+        .map(|p| match &p.data_type {
+            PropertyType::Scalar(t) => Some(match t {
+                ScalarType::Char | ScalarType::UChar => 1,
+                ScalarType::Short | ScalarType::UShort => 2,
+                ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+                ScalarType::Double => 8,
+            }),
+            PropertyType::List(..) => None,
+        })
+        .sum()
+}
+
+/// The part of a ply-rs message before its debug details, and the offending text it quotes.
+fn ply_rs_message(e: &std::io::Error) -> (String, Option<String>) {
+    let text = e.to_string();
+    let head = text.split(['\t', '\n']).next().unwrap_or("").trim();
+    let quoted = text
+        .split_once("String: '")
+        .and_then(|(_, rest)| rest.split_once('\'').map(|(q, _)| q.trim().to_string()));
+    (head.to_string(), quoted)
+}
+
+fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
+    let at = |line: Option<u64>, message: String| IoError::Parse {
         path: path.into(),
-        line: None,
+        line: line.map(|l| l as usize),
         message,
     };
+    let parse = |message: String| at(None, message);
+    let mut reader = Counting {
+        inner: reader,
+        bytes: 0,
+        line_ends: 0,
+        lines: true,
+    };
     let parser = Parser::<E>::new();
-    let header = parser
-        .read_header(&mut reader)
-        .map_err(|e| parse(format!("not a valid PLY file: {e}")))?;
+    let header = parser.read_header(&mut reader).map_err(|e| {
+        let (head, _) = ply_rs_message(&e);
+        // ply-rs counts header lines from 1 as "Line N: ...".
+        let line = head
+            .strip_prefix("Line ")
+            .and_then(|r| r.split_once(':'))
+            .and_then(|(n, _)| n.trim().parse::<u64>().ok());
+        let what = match line {
+            Some(_) => head
+                .split_once(':')
+                .map_or(head.as_str(), |(_, m)| m.trim()),
+            None => head.as_str(),
+        };
+        at(line, format!("not a valid PLY header: {what}"))
+    })?;
+    let ascii = header.encoding == Encoding::Ascii;
+    reader.lines = ascii;
     let vertex = header
         .elements
         .get("vertex")
@@ -162,9 +253,57 @@ fn read_elements<E: Row>(
     let mut points = Vec::new();
     let mut face_rows = Vec::new();
     for (name, def) in &header.elements {
+        let (start_byte, start_line) = (reader.bytes, reader.line_ends);
+        let declared = def.count;
         let rows = parser
             .read_payload_for_element(&mut reader, def, &header)
-            .map_err(|e| parse(format!("not a valid PLY file: element `{name}`: {e}")))?;
+            .map_err(|e| {
+                let (head, quoted) = ply_rs_message(&e);
+                let eof = head.contains("end of file");
+                let columns = def.properties.len();
+                match (ascii, eof) {
+                    (true, true) => at(
+                        Some(reader.line_ends + 1),
+                        format!(
+                            "the file ends after {} of the {declared} `{name}` rows the header \
+                             declares",
+                            reader.line_ends - start_line
+                        ),
+                    ),
+                    (true, false) => at(
+                        Some(reader.line_ends),
+                        format!(
+                            "`{name}` row {}: expected {columns} numbers as the header declares{}",
+                            (reader.line_ends - start_line).saturating_sub(1),
+                            quoted.map(|q| format!(", found {q:?}")).unwrap_or_default()
+                        ),
+                    ),
+                    (false, _) => {
+                        let size = row_size(def);
+                        let row = size
+                            .map(|b| {
+                                let row = (reader.bytes - start_byte) / b;
+                                format!(" row {row} (0-based) of the {declared} declared")
+                            })
+                            .unwrap_or_default();
+                        parse(format!(
+                            "byte {}: {} inside `{name}`{row}; the element starts at byte \
+                             {start_byte}{}",
+                            reader.bytes,
+                            if eof {
+                                "the file ends"
+                            } else {
+                                "unreadable data"
+                            },
+                            size.map(|b| format!(
+                                " and needs {declared} rows of {b} bytes = {} bytes",
+                                declared as u64 * b
+                            ))
+                            .unwrap_or_default()
+                        ))
+                    }
+                }
+            })?;
         if name == "face" {
             face_rows = rows;
             continue;
@@ -184,6 +323,36 @@ fn read_elements<E: Row>(
             }
             points.push(Point3::from(xyz));
         }
+    }
+    // Anything but white space after the last element: the header's counts are wrong.
+    loop {
+        let bytes = reader.bytes;
+        let buf = reader
+            .fill_buf()
+            .map_err(|e| parse(format!("byte {bytes}: {e}")))?;
+        let n = buf.len();
+        if n == 0 {
+            break;
+        }
+        let Some(k) = buf.iter().position(|b| !b.is_ascii_whitespace()) else {
+            reader.consume(n);
+            continue;
+        };
+        reader.consume(k);
+        let counts: Vec<String> = header
+            .elements
+            .values()
+            .map(|d| format!("{} `{}`", d.count, d.name))
+            .collect();
+        let message = format!(
+            "data after the last element: the header declares {} rows",
+            counts.join(", ")
+        );
+        return Err(if ascii {
+            at(Some(reader.line_ends + 1), message)
+        } else {
+            parse(format!("byte {}: {message}", reader.bytes))
+        });
     }
     let mut triangles = Vec::new();
     for (i, face) in face_rows.iter().enumerate() {
@@ -252,6 +421,15 @@ mod tests {
             "{err}"
         );
         let err = read(Path::new("d.ply"), &b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n"[..]).unwrap_err().to_string();
-        assert!(err.starts_with("d.ply: not a valid PLY file"), "{err}");
+        assert!(
+            err.starts_with("d.ply:9: the file ends after 1 of the 3 `vertex` rows"),
+            "{err}"
+        );
+        // CRLF line ends and a comment read the same.
+        let crlf = "ply\r\nformat ascii 1.0\r\ncomment c\r\nelement vertex 2\r\nproperty float x\r\nproperty float y\r\nproperty float z\r\nend_header\r\n1 2 3\r\n4 5 6\r\n";
+        assert_eq!(
+            read(Path::new("e.ply"), crlf.as_bytes()).unwrap(),
+            vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+        );
     }
 }

@@ -142,6 +142,11 @@ def register(
     polish_neighbours: int = 5,
     polish_max_distance: float = 0.05,
     polish_max_shift: float = 0.05,
+    polish_near_spacings: float = 3.0,
+    shift_search_radius: float = 0.3,
+    shift_search_voxel: float = 0.02,
+    shift_search_candidates: int = 4,
+    shift_search_min_gain: float = 0.02,
 ) -> Registration:
     """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
     cloud onto the target's surface, without point correspondences.
@@ -175,6 +180,10 @@ def register(
     ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
     ``polish_*``: the final point-to-plane steps on the target points
     (``polish_iterations=0`` turns them off).
+    ``shift_search_*``: translations (within ``shift_search_radius``, on a grid of
+    ``shift_search_voxel``) that lay more source points onto the target than the SDF's pose; the
+    best ``shift_search_candidates`` are polished, and one is kept if it raises the fitness by
+    ``shift_search_min_gain`` (``shift_search_radius=0`` turns it off).
 
     Returns:
         The :class:`Registration`.
