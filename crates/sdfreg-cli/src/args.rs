@@ -48,6 +48,10 @@ pub struct Common {
     /// A fixed robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
     #[arg(long)]
     pub robust_scale: Option<f64>,
+    /// Without --robust: when the least-squares result fits fewer source points than this
+    /// fraction, run again with the robust kernel and keep the better fit; 0 never [default: 0.5].
+    #[arg(long)]
+    pub robust_below_fitness: Option<f64>,
     /// Also start the multi-start shifted by ± this along each axis (fraction of the target's size).
     #[arg(long)]
     pub multistart_offset: Option<f64>,
@@ -87,6 +91,9 @@ impl Common {
         }
         if let Some(p) = self.prefit_steps {
             s.fit.prefit_steps = p;
+        }
+        if let Some(f) = self.robust_below_fitness {
+            s.robust_below_fitness = f;
         }
         if let Some(t) = self.multistart_tie {
             s.multistart_tie = t;

@@ -249,6 +249,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 "converged": r.converged,
                 "stop_reason": format!("{:?}", r.stop_reason),
                 "fitness": r.fitness,
+                "robust": r.robust,
                 "inlier_rmse": r.inlier_rmse,
                 "inlier_distance": r.inlier_distance,
                 "iterations": r.iterations,
@@ -276,7 +277,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         );
     }
     eprintln!(
-        "sdfreg: {} after {} LM iterations ({:?}), fitness {:.3}, inlier RMSE {:.3e}, {:.0} ms",
+        "sdfreg: {} after {} LM iterations ({:?}), fitness {:.3}{}, inlier RMSE {:.3e}, {:.0} ms",
         if r.converged {
             "converged"
         } else {
@@ -285,6 +286,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         r.iterations,
         r.stop_reason,
         r.fitness,
+        if r.robust { " (robust kernel)" } else { "" },
         r.inlier_rmse,
         r.time.as_secs_f64() * 1e3
     );

@@ -35,6 +35,13 @@ impl PyRegistration {
         self.0.fitness
     }
 
+    /// Whether the robust kernel produced this result (``robust=True``, or least squares fitted
+    /// below ``robust_below_fitness`` and the robust run fitted better).
+    #[getter]
+    fn robust(&self) -> bool {
+        self.0.robust
+    }
+
     /// RMSE of the inliers' nearest-neighbour distances, in the clouds' units.
     #[getter]
     fn inlier_rmse(&self) -> f64 {

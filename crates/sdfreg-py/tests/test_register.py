@@ -102,6 +102,7 @@ def test_result_fields(pair) -> None:
     ev = r.constraint_eigenvalues
     assert ev.shape == (6,) and ev[-1] == 1.0 and np.all(np.diff(ev) >= 0)
     assert ev[0] > 0.002 and r.free_motions == []
+    assert r.robust is False  # a good least-squares fit is not redone
 
 
 def test_a_tube_reports_its_free_spin() -> None:

@@ -56,6 +56,10 @@ class Registration:
     def fitness(self) -> float:
         """Fraction of source points within ``inlier_distance`` of a target point."""
     @property
+    def robust(self) -> bool:
+        """Whether the robust kernel produced this result (``robust=True``, or least squares fitted
+        below ``robust_below_fitness`` and the robust run fitted better)."""
+    @property
     def inlier_rmse(self) -> float:
         """RMSE of the inliers' nearest-neighbour distances, in the clouds' units."""
     @property
@@ -110,6 +114,7 @@ def register(
     max_target_points: int = 100000,
     robust_scale: Optional[float] = None,
     robust: bool = False,
+    robust_below_fitness: float = 0.5,
     robust_kappa_start: float = 3.0,
     robust_kappa_end: float = 1.0,
     robust_floor: float = 0.002,
@@ -173,7 +178,9 @@ def register(
     ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
     constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust``:
     Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
-    ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale. ``inlier_distance``: for ``fitness``
+    ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale; without
+    either, a result with ``fitness`` below ``robust_below_fitness`` is redone with the robust
+    kernel (and ``multistart_tie`` 0.05) and the better fit returned. ``inlier_distance``: for ``fitness``
     and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
     ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
     ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
