@@ -49,7 +49,8 @@ pub struct Common {
     #[arg(long)]
     pub robust_scale: Option<f64>,
     /// Without --robust: when the least-squares result fits fewer source points than this
-    /// fraction, run again with the robust kernel and keep the better fit; 0 never [default: 0.5].
+    /// fraction, run again with the robust kernel, kept if it fits 1.3 times as many; 0 never
+    /// [default: 0.35].
     #[arg(long)]
     pub robust_below_fitness: Option<f64>,
     /// Also start the multi-start shifted by ± this along each axis (fraction of the target's size).

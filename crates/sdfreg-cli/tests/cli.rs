@@ -215,7 +215,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         let line = err
             .trim_end()
             .replace(&format!("{}/", dir.path().display()), "");
-        println!("| {case} | `{line}` |");
+        println!("| {case} | `` {line} `` |");
         assert_eq!(out.status.code(), Some(2), "{case}: {err}");
         for e in expected {
             assert!(line.contains(e), "{case}: expected {e:?} in {line:?}");

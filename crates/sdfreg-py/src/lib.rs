@@ -85,7 +85,7 @@ macro_rules! register_function {
         /// Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
         /// ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale; without
         /// either, a result with ``fitness`` below ``robust_below_fitness`` is redone with the robust
-        /// kernel (and ``multistart_tie`` 0.05) and the better fit returned. ``inlier_distance``: for ``fitness``
+        /// kernel (and ``multistart_tie`` 0.05), kept if it fits 1.3 times as many points. ``inlier_distance``: for ``fitness``
         /// and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
         /// ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
         /// ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
@@ -156,7 +156,7 @@ register_function! {
     max_target_points: i64 = 100000 => max_target_points,
     robust_scale: Option<f64> = None => robust_scale,
     robust: bool = false => robust,
-    robust_below_fitness: f64 = 0.5 => robust_below_fitness,
+    robust_below_fitness: f64 = 0.35 => robust_below_fitness,
     robust_kappa_start: f64 = 3.0 => robust_kappa_start,
     robust_kappa_end: f64 = 1.0 => robust_kappa_end,
     robust_floor: f64 = 0.002 => robust_floor,

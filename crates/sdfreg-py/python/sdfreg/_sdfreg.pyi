@@ -114,7 +114,7 @@ def register(
     max_target_points: int = 100000,
     robust_scale: Optional[float] = None,
     robust: bool = False,
-    robust_below_fitness: float = 0.5,
+    robust_below_fitness: float = 0.35,
     robust_kappa_start: float = 3.0,
     robust_kappa_end: float = 1.0,
     robust_floor: float = 0.002,
@@ -180,7 +180,7 @@ def register(
     Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
     ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale; without
     either, a result with ``fitness`` below ``robust_below_fitness`` is redone with the robust
-    kernel (and ``multistart_tie`` 0.05) and the better fit returned. ``inlier_distance``: for ``fitness``
+    kernel (and ``multistart_tie`` 0.05), kept if it fits 1.3 times as many points. ``inlier_distance``: for ``fitness``
     and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
     ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
     ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
