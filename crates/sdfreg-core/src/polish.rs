@@ -200,7 +200,7 @@ fn gauss_newton(
             break;
         };
         pose = exp_se3(&delta) * pose;
-        if delta.fixed_rows::<3>(0).norm() < 1e-8 && delta.fixed_rows::<3>(3).norm() < 1e-8 {
+        if delta.fixed_rows::<3>(0).norm() < 1e-7 && delta.fixed_rows::<3>(3).norm() < 1e-7 {
             break;
         }
     }
