@@ -144,6 +144,15 @@ fn ply_binary(big_endian: bool, n: usize, keep: usize) -> Vec<u8> {
     b
 }
 
+/// A bad-input case: its name, the file name, the contents (None: not created) and fragments the
+/// message must contain.
+type BadInput = (
+    &'static str,
+    &'static str,
+    Option<Vec<u8>>,
+    Vec<&'static str>,
+);
+
 /// Every kind of bad input tried: exit code 2 and one line naming the file, the place (line or
 /// byte) and what was expected. `cargo test -p sdfreg-cli --test cli bad_input -- --nocapture`
 /// prints the table of messages.
@@ -171,8 +180,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         b.extend_from_slice(body);
         b
     };
-    // (case, file name, contents (None: not created), expected fragments of the message)
-    let cases: Vec<(&str, &str, Option<Vec<u8>>, Vec<&str>)> = vec![
+    let cases: Vec<BadInput> = vec![
         ("empty PLY", "empty.ply", Some(vec![]), vec!["empty.ply", "no points"]),
         ("empty XYZ", "empty.xyz", Some(vec![]), vec!["empty.xyz", "no points"]),
         ("empty PCD", "empty.pcd", Some(vec![]), vec!["empty.pcd", "no points"]),
