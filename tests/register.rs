@@ -55,19 +55,28 @@ fn the_polish_lays_a_copy_exactly_onto_its_points_and_can_be_turned_off() {
     );
 }
 
-#[test]
-fn the_robust_kernel_ignores_source_points_outside_the_target() {
-    // A partial view: the target lacks the part of the blob with x > 0.3, which the source
-    // still has (about a sixth of it); the overlap must decide the pose.
-    let full = blob(1500, 8);
-    let target: Vec<_> = blob(1500, 9).into_iter().filter(|p| p.x < 0.3).collect();
+/// A partial view: the whole blob, moved, as the source; as the target an independent sample of
+/// its part with x < `cut`. Returns source, target and the motion applied to the source.
+fn partial_view(cut: f64) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, nalgebra::Isometry3<f64>) {
+    let target: Vec<_> = blob(1500, 9).into_iter().filter(|p| p.x < cut).collect();
     let m = motion(30.0, [0.2, -0.1, 0.1]);
-    let source = moved(&full, &m);
-    let least_squares = RegisterSettings {
+    (moved(&blob(1500, 8), &m), target, m)
+}
+
+/// `quick()` with plain least squares only (no robust re-run).
+fn least_squares() -> RegisterSettings {
+    RegisterSettings {
         robust_below_fitness: 0.0,
         ..quick()
-    };
-    let plain = register(&source, &target, None, &least_squares).unwrap();
+    }
+}
+
+#[test]
+fn the_robust_kernel_ignores_source_points_outside_the_target() {
+    // The target lacks the part of the blob with x > 0.3, which the source still has (about a
+    // sixth of it); the overlap must decide the pose.
+    let (source, target, m) = partial_view(0.3);
+    let plain = register(&source, &target, None, &least_squares()).unwrap();
     let (rot_l2, _) = pose_errors(&plain.t_target_source, &m.inverse());
     assert!(rot_l2 > 3.0, "least squares is dragged off: {rot_l2}°");
     let mut s = quick();
@@ -88,15 +97,8 @@ fn a_poor_least_squares_fit_is_redone_with_the_robust_kernel() {
     // The target keeps only the blob's part with x < 0.2, so much of the source has no
     // counterpart: least squares lands far off at a poor fit (measured: 82° at fitness 0.07),
     // and by default the robust run replaces it (0.2° at 0.29).
-    let full = blob(1500, 8);
-    let target: Vec<_> = blob(1500, 9).into_iter().filter(|p| p.x < 0.2).collect();
-    let m = motion(30.0, [0.2, -0.1, 0.1]);
-    let source = moved(&full, &m);
-    let least_squares = RegisterSettings {
-        robust_below_fitness: 0.0,
-        ..quick()
-    };
-    let plain = register(&source, &target, None, &least_squares).unwrap();
+    let (source, target, m) = partial_view(0.2);
+    let plain = register(&source, &target, None, &least_squares()).unwrap();
     let (rot_l2, _) = pose_errors(&plain.t_target_source, &m.inverse());
     assert!(!plain.robust && plain.fitness < 0.5, "{}", plain.fitness);
     let r = register(&source, &target, None, &quick()).unwrap();

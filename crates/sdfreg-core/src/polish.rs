@@ -264,15 +264,16 @@ pub fn polish(
         s.max_distance
     };
     let k = s.neighbours;
-    let full_d2 = s.max_distance * s.max_distance;
-    let (mut pose, mut iterations) =
-        gauss_newton(source, start, s.iterations, Residuals::Planes, |x| {
-            local_plane(target, tree, x, k, full_d2)
-        });
+    // Local planes with every point within max_distance, then (when narrower) within the gate.
+    let mut gates = vec![s.max_distance];
     if gate < s.max_distance {
-        let max_d2 = gate * gate;
+        gates.push(gate);
+    }
+    let (mut pose, mut iterations) = (start, 0);
+    for d in gates {
+        let d2 = d * d;
         let (p, n) = gauss_newton(source, pose, s.iterations, Residuals::Planes, |x| {
-            local_plane(target, tree, x, k, max_d2)
+            local_plane(target, tree, x, k, d2)
         });
         pose = p;
         iterations += n;
@@ -329,19 +330,26 @@ mod tests {
     use crate::sdf_fit::build_tree;
     use rand::SeedableRng;
 
-    #[test]
-    fn removes_a_small_offset_on_shared_points_and_ignores_far_ones() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let target: Vec<[f32; 3]> = crate::shapes::blob(3000, &mut rng)
+    /// `n` points of a blob scaled by 0.8 (f32, as the target), their tree, and the first
+    /// `shared` of them as f64 source points.
+    fn blob_pair(n: usize, shared: usize, seed: u64) -> (Vec<[f32; 3]>, Tree, Vec<Point3<f64>>) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let target: Vec<[f32; 3]> = crate::shapes::blob(n, &mut rng)
             .iter()
             .map(|p| [p.x as f32 * 0.8, p.y as f32 * 0.8, p.z as f32 * 0.8])
             .collect();
         let tree = build_tree(&target);
-        let truth = Isometry3::identity();
-        let mut source: Vec<Point3<f64>> = target[..1500]
+        let source = target[..shared]
             .iter()
             .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
             .collect();
+        (target, tree, source)
+    }
+
+    #[test]
+    fn removes_a_small_offset_on_shared_points_and_ignores_far_ones() {
+        let (target, tree, mut source) = blob_pair(3000, 1500, 5);
+        let truth = Isometry3::identity();
         // Points beyond the target's coverage must not pull.
         source.extend((0..300).map(|i| Point3::new(0.9 + i as f64 * 1e-3, 0.9, 0.0)));
         let start = exp_se3(&Vector6::new(0.01, -0.008, 0.005, 0.004, -0.003, 0.002));
@@ -361,16 +369,7 @@ mod tests {
         // Half the source lies 1–4 % beside the target (inside the distance gate, as a partial
         // scan's points beyond the target's edge do), all on one side: with the plain median
         // as the kernel's scale they drag the pose towards them.
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(6);
-        let target: Vec<[f32; 3]> = crate::shapes::blob(4000, &mut rng)
-            .iter()
-            .map(|p| [p.x as f32 * 0.8, p.y as f32 * 0.8, p.z as f32 * 0.8])
-            .collect();
-        let tree = build_tree(&target);
-        let mut source: Vec<Point3<f64>> = target[..2000]
-            .iter()
-            .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
-            .collect();
+        let (target, tree, mut source) = blob_pair(4000, 2000, 6);
         source.extend(target[2000..].iter().enumerate().map(|(i, p)| {
             let lift = 0.01 + 0.03 * (i % 100) as f64 / 100.0;
             Point3::new(p[0] as f64 + lift, p[1] as f64, p[2] as f64 + 0.5 * lift)

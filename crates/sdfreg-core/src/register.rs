@@ -370,14 +370,26 @@ fn nn_score(
     sum / points.len().max(1) as f64
 }
 
-/// Fraction of the (already moved) `points` within `sqrt(thr2)` of a target point.
-fn inlier_fraction(tree: &Tree, points: &[[f32; 3]], thr2: f64) -> f64 {
+/// Fitness — the fraction of the (already moved) `points` within `sqrt(thr2)` of a target
+/// point — and the RMS distance of those inliers, normalised units.
+fn inlier_stats(tree: &Tree, points: &[[f32; 3]], thr2: f64) -> (f64, f64) {
     let thr2 = thr2 as f32;
-    let n = points
+    let d2: Vec<f32> = points
         .par_iter()
-        .filter(|x| tree.nearest_one::<SquaredEuclidean>(x).distance <= thr2)
-        .count();
-    n as f64 / points.len().max(1) as f64
+        .map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance)
+        .collect();
+    let inliers: Vec<f64> = d2
+        .iter()
+        .filter(|&&d| d <= thr2)
+        .map(|&d| d as f64)
+        .collect();
+    let fitness = inliers.len() as f64 / points.len().max(1) as f64;
+    let rms = if inliers.is_empty() {
+        0.0
+    } else {
+        (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt()
+    };
+    (fitness, rms)
 }
 
 /// Index of the candidate with the least rotation among those whose score is within
@@ -693,22 +705,25 @@ fn run(
     let mut pose_unit = polish(&src_unit, fit.target(), fit.tree(), &lm.pose, &s.polish).pose;
     // Translations that lay clearly more source points onto the target (a slide along a
     // scene's walls that the smooth Φ does not see), each polished, kept on a fitness gain.
+    // The kept pose's fitness and inlier RMS are also the result's.
     let thr2 = s.inlier_distance * s.inlier_distance;
-    let moved = transformed_f32(&src_unit, &pose_unit);
-    let base = inlier_fraction(fit.tree(), &moved, thr2);
-    let mut best = base + s.shift_search.min_gain;
+    let mut moved = transformed_f32(&src_unit, &pose_unit);
+    let (mut fitness, mut inlier_rms) = inlier_stats(fit.tree(), &moved, thr2);
+    let mut best = fitness + s.shift_search.min_gain;
     for peak in occupancy_peaks(&moved, fit.target(), &s.shift_search) {
         let start = Translation3::from(peak.offset) * pose_unit;
         let candidate = polish(&src_unit, fit.target(), fit.tree(), &start, &s.polish).pose;
-        let f = inlier_fraction(fit.tree(), &transformed_f32(&src_unit, &candidate), thr2);
+        let candidate_moved = transformed_f32(&src_unit, &candidate);
+        let (f, rms) = inlier_stats(fit.tree(), &candidate_moved, thr2);
         if f >= best {
             best = f;
+            (fitness, inlier_rms) = (f, rms);
             pose_unit = candidate;
+            moved = candidate_moved;
         }
     }
 
     // Quality measures in the user's frame.
-    let moved = transformed_f32(&src_unit, &pose_unit);
     let (phi, grads) = fit.mlp().eval(&moved, true);
     let mut information = Matrix6::zeros();
     let mut cost = 0.0;
@@ -724,23 +739,6 @@ fn run(
         normals.push(n);
     }
     let degeneracy = Degeneracy::analyse(&moved_user, &normals, s.free_motion_ratio);
-    let tree = fit.tree();
-    let d2: Vec<f32> = moved
-        .par_iter()
-        .map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance)
-        .collect();
-    let thr = (s.inlier_distance * s.inlier_distance) as f32;
-    let inliers: Vec<f64> = d2
-        .iter()
-        .filter(|&&d| d <= thr)
-        .map(|&d| d as f64)
-        .collect();
-    let fitness = inliers.len() as f64 / moved.len() as f64;
-    let inlier_rmse = if inliers.is_empty() {
-        0.0
-    } else {
-        (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt() * norm.scale
-    };
 
     Ok(Registration {
         t_target_source: norm.pose_from_unit(&pose_unit),
@@ -749,7 +747,7 @@ fn run(
         iterations: lm.iterations,
         cost: cost / moved.len() as f64,
         fitness,
-        inlier_rmse,
+        inlier_rmse: inlier_rms * norm.scale,
         inlier_distance: s.inlier_distance * norm.scale,
         information,
         degeneracy,
