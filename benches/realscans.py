@@ -1,7 +1,7 @@
 """sdfreg on real scans: the Stanford bunny's neighbouring views and the 3DMatch pair.
 
     scripts/python-env                      # once: the venv with the sdfreg wheel
-    .venv/bin/python benches/realscans.py --data ../shared/data [--json out.json] [-- key=value ...]
+    .venv/bin/python benches/realscans.py --data ../shared/data [--json out.json] [key=value ...]
 
 Pairs (metres, every registration from the clouds as they are — no initial guess):
 - bunny: bun045→bun000, bun090→bun045, bun180→bun090, bun270→bun180, bun315→bun270,
@@ -13,10 +13,10 @@ Pairs (metres, every registration from the clouds as they are — no initial gue
 
 Prints per pair the rotation error (geodesic, °), translation error (mm for the bunny, m for
 3DMatch), fitness, whether the robust kernel produced the result, flagged free motions and time.
-Settings: SCAN_SETTINGS (the robust kernel from the start, multi-start tie 0.05: what partial
-scans should use), overridden by `key=value` arguments passed to `sdfreg.register`
-(`robust=False multistart_tie=0.25` gives sdfreg's defaults, where a poor least-squares fit is
-redone with the robust kernel). Skips with a message when --data is missing.
+Settings: `preset=scans` (sdfreg's preset for scans known to overlap only in part: the robust
+kernel from the start, multi-start tie 0.05), overridden by `key=value` arguments passed to
+`sdfreg.register` (`preset=default` gives sdfreg's defaults, where a poor least-squares fit is
+redone with the robust kernel; `robust=off`, …). Skips with a message when --data is missing.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ BUNNY_PAIRS = [
 ]
 
 
-SCAN_SETTINGS = {"robust": True, "multistart_tie": 0.05}
+SCAN_SETTINGS = {"preset": "scans"}
 
 
 def errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -87,6 +87,7 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
         "free_motions": [repr(f) for f in r.free_motions],
         "time_s": r.time_s,
     }
+    row["stages"] = r.stages
     free = f"  free: {len(r.free_motions)}" if r.free_motions else ""
     print(f"{name:28s} {rot:8.3f}° {tr / unit:9.3f} {'mm' if unit < 1 else 'm '}  "
           f"fitness {r.fitness:.3f}{' robust' if r.robust else '       '}  {r.time_s:.2f} s{free}",

@@ -3,10 +3,13 @@
 use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::protocol::pose_errors;
-use sdfreg_core::{register, shapes, Error, MotionKind, RegisterSettings, Role};
+use sdfreg_core::se3::pose_errors;
+use sdfreg_core::{
+    register, shapes, Error, MotionKind, PolishResult, RegisterSettings, RobustMode, RobustReport,
+    Role,
+};
 
-use crate::common::{motion, moved, quick};
+use crate::common::{motion, moved, partial_scans_quick, quick};
 
 fn blob(n: usize, seed: u64) -> Vec<Point3<f64>> {
     shapes::blob(n, &mut ChaCha8Rng::seed_from_u64(seed))
@@ -24,6 +27,18 @@ fn recovers_a_40_degree_motion_of_a_blob() {
     );
     assert!(r.converged);
     assert!(r.fitness > 0.95, "fitness {}", r.fitness);
+    // What the stages did: 24 rotations × 7 centroid shifts; the source is the target's own
+    // sample, so the polish snaps it onto those points; least squares fitted, no re-run.
+    let st = &r.stages;
+    assert!(!st.initial.given && st.initial.starts == 168, "{st:?}");
+    assert!((1..=3).contains(&st.initial.hypotheses), "{st:?}");
+    assert_eq!(st.polish.result, PolishResult::Snapped, "{st:?}");
+    assert!(st.polish.change.rotation_deg < 1.0, "{st:?}");
+    assert!(
+        matches!(st.robust, RobustReport::NotNeeded { least_squares_fitness } if least_squares_fitness == r.fitness),
+        "{st:?}"
+    );
+    assert!(!st.shift_search.taken, "{st:?}");
     assert!(r.inlier_rmse < 0.02, "inlier RMSE {}", r.inlier_rmse);
     // JᵀJ is symmetric positive definite for a generic shape.
     assert!((r.information - r.information.transpose()).amax() < 1e-9 * r.information.amax());
@@ -45,6 +60,12 @@ fn the_polish_lays_a_copy_exactly_onto_its_points_and_can_be_turned_off() {
     let polished = register(&source, &target, None, &s).unwrap();
     s.polish.iterations = 0;
     let sdf_only = register(&source, &target, None, &s).unwrap();
+    assert_eq!(polished.stages.polish.result, PolishResult::Snapped);
+    assert_eq!(polished.stop_reason, polished.stages.polish.stop_reason);
+    assert_eq!(sdf_only.stages.polish.result, PolishResult::Off);
+    assert!(!sdf_only.stages.polish.change.moved());
+    // Without the polish, the final LM set the pose: its stop reason is the result's.
+    assert_eq!(sdf_only.stop_reason, sdf_only.stages.final_lm.stop_reason);
     let (rot, tr) = pose_errors(&polished.t_target_source, &m.inverse());
     let (rot0, tr0) = pose_errors(&sdf_only.t_target_source, &m.inverse());
     assert!(rot < 1e-3 && tr < 1e-5, "polished: {rot}°, {tr}");
@@ -65,10 +86,9 @@ fn partial_view(cut: f64) -> (Vec<Point3<f64>>, Vec<Point3<f64>>, nalgebra::Isom
 
 /// `quick()` with plain least squares only (no robust re-run).
 fn least_squares() -> RegisterSettings {
-    RegisterSettings {
-        robust_below_fitness: 0.0,
-        ..quick()
-    }
+    let mut s = quick();
+    s.robust.mode = RobustMode::Off;
+    s
 }
 
 #[test]
@@ -79,10 +99,9 @@ fn the_robust_kernel_ignores_source_points_outside_the_target() {
     let plain = register(&source, &target, None, &least_squares()).unwrap();
     let (rot_l2, _) = pose_errors(&plain.t_target_source, &m.inverse());
     assert!(rot_l2 > 3.0, "least squares is dragged off: {rot_l2}°");
-    let mut s = quick();
-    s.robust = true;
-    s.multistart_tie = 0.05;
-    let r = register(&source, &target, None, &s).unwrap();
+    assert_eq!(plain.stages.robust, RobustReport::Off);
+    let r = register(&source, &target, None, &partial_scans_quick()).unwrap();
+    assert!(r.robust && r.stages.robust == RobustReport::FromStart);
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
     assert!(rot < 1.0 && tr < 0.01, "robust: {rot}°, {tr}");
     assert!(
@@ -103,6 +122,15 @@ fn a_poor_least_squares_fit_is_redone_with_the_robust_kernel() {
     assert!(!plain.robust && plain.fitness < 0.5, "{}", plain.fitness);
     let r = register(&source, &target, None, &quick()).unwrap();
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    let RobustReport::RerunKept {
+        least_squares_fitness,
+        robust_fitness,
+    } = r.stages.robust
+    else {
+        panic!("{:?}", r.stages.robust)
+    };
+    assert_eq!(least_squares_fitness, plain.fitness);
+    assert_eq!(robust_fitness, r.fitness);
     assert!(
         r.robust && r.fitness > plain.fitness,
         "{} {}",
@@ -201,8 +229,10 @@ fn initial_guess_replaces_the_multistart() {
     // A guess 10° off the truth.
     let guess = motion(10.0, [0.02, 0.0, 0.0]) * m.inverse();
     let mut s = quick();
-    s.multistart = false;
+    s.multistart.enabled = false;
     let r = register(&source, &target, Some(&guess), &s).unwrap();
+    assert!(r.stages.initial.given && r.stages.initial.starts == 0);
+    assert!((r.stages.initial.rotation_deg - 170.0).abs() < 15.0);
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
     assert!(
         rot < 1.0 && tr < 0.01,
@@ -216,7 +246,7 @@ fn same_seed_same_result_whatever_the_thread_count() {
     let source = moved(&target, &motion(30.0, [0.1, 0.2, 0.0]));
     let mut s = quick();
     s.fit.prefit_steps = 100;
-    s.alternations = 2;
+    s.coarse_to_fine.alternations = 2;
     s.threads = 1;
     let a = register(&source, &target, None, &s).unwrap();
     s.threads = 2;
@@ -277,8 +307,17 @@ fn bad_input_is_a_typed_error() {
     bad.mlp.width = 0;
     assert!(matches!(
         register(&good, &good, None, &bad),
-        Err(Error::InvalidSetting { .. })
+        Err(Error::InvalidSetting {
+            name: "mlp.width",
+            ..
+        })
     ));
+    let mut bad = s.clone();
+    bad.lm.max_tries = 0;
+    assert_eq!(
+        register(&good, &good, None, &bad).unwrap_err().to_string(),
+        "invalid setting `lm.max_tries`: must be ≥ 1, got 0"
+    );
     let inf_guess = nalgebra::Isometry3::translation(f64::INFINITY, 0.0, 0.0);
     assert!(matches!(
         register(&good, &good, Some(&inf_guess), &s),

@@ -20,9 +20,17 @@ pub fn moved(points: &[Point3<f64>], m: &Isometry3<f64>) -> Vec<Point3<f64>> {
 /// A shorter schedule than the default, to keep the test suite quick; accuracy bounds in the
 /// tests hold for it (the default schedule does better, see `sdfreg eval`).
 pub fn quick() -> RegisterSettings {
-    let mut s = RegisterSettings::default();
+    shorten(RegisterSettings::default())
+}
+
+/// [`quick`]'s schedule on the preset for partial scans.
+pub fn partial_scans_quick() -> RegisterSettings {
+    shorten(RegisterSettings::partial_scans())
+}
+
+fn shorten(mut s: RegisterSettings) -> RegisterSettings {
     s.fit.prefit_steps = 300;
-    s.alternations = 6;
+    s.coarse_to_fine.alternations = 6;
     s.fit.refine_steps = 40;
     s
 }

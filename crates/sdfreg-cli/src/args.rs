@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use sdfreg_core::RegisterSettings;
+use sdfreg_core::{RegisterSettings, RobustMode};
 
 /// Correspondence-free rigid point-cloud registration by a neural signed distance function.
 #[derive(Parser, Debug)]
@@ -23,41 +23,61 @@ pub enum Command {
     Eval(EvalArgs),
 }
 
+/// The robust kernel's modes (`RobustMode`), as flags name them.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RobustFlag {
+    /// Least squares throughout.
+    Off,
+    /// The robust kernel from the start (scans that overlap in part).
+    On,
+    /// Least squares, redone with the robust kernel when it fits poorly.
+    Auto,
+}
+
 /// Settings shared by every command that registers.
 #[derive(Args, Debug, Clone)]
 pub struct Common {
+    /// Start from a named preset: `default`, or `scans` for scans known to overlap only in part
+    /// (robust kernel from the start, multi-start tie 0.05). Other flags override it.
+    #[arg(long, default_value = "default", value_parser = clap::builder::PossibleValuesParser::new(RegisterSettings::PRESETS))]
+    pub preset: String,
     /// Seed of every random choice (equal seeds give identical results).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Worker threads; 0 = one per core. Results do not depend on it.
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
-    /// Coarse-to-fine alternations of SDF refinement and LM steps.
+    /// Coarse-to-fine alternations of SDF refinement and LM steps [default: 10].
     #[arg(long)]
     pub alternations: Option<usize>,
-    /// Adam steps of the SDF pre-fit.
+    /// Adam steps of the SDF pre-fit [default: 500].
     #[arg(long)]
     pub prefit_steps: Option<usize>,
-    /// Adam steps of SDF refinement per alternation.
+    /// Adam steps of SDF refinement per alternation [default: 40].
     #[arg(long)]
     pub refine_steps: Option<usize>,
-    /// Robust (Geman–McClure) kernel with its scale from the residuals, annealed; for partial
-    /// overlap (real scans).
+    /// When the robust (Geman–McClure) kernel is used: `auto` (least squares, redone with the
+    /// kernel when the result fits fewer than --robust-below-fitness of the source points, kept
+    /// if it fits 1.3 times as many), `on` (from the start: partial overlap), `off`
+    /// [default: the preset's, auto].
+    #[arg(long, value_enum, conflicts_with = "robust")]
+    pub robust_mode: Option<RobustFlag>,
+    /// Same as --robust-mode on.
     #[arg(long)]
     pub robust: bool,
-    /// A fixed robust (Geman–McClure) kernel scale, as a fraction of the target's largest side.
-    #[arg(long)]
+    /// A fixed robust kernel scale (fraction of the target's largest side) from the start.
+    #[arg(long, conflicts_with_all = ["robust", "robust_mode"])]
     pub robust_scale: Option<f64>,
-    /// Without --robust: when the least-squares result fits fewer source points than this
-    /// fraction, run again with the robust kernel, kept if it fits 1.3 times as many; 0 never
+    /// With --robust-mode auto: the fitness below which the robust re-run is tried; 0 never
     /// [default: 0.35].
     #[arg(long)]
     pub robust_below_fitness: Option<f64>,
-    /// Also start the multi-start shifted by ± this along each axis (fraction of the target's size).
+    /// Also start the multi-start shifted by ± this along each axis (fraction of the target's
+    /// size) [default: 0.1].
     #[arg(long)]
     pub multistart_offset: Option<f64>,
     /// Multi-start finalists within this fraction of the best score are ties, won by the smallest
-    /// rotation [default: 0.25]; 0.05 for scans whose views are far apart.
+    /// rotation [default: the preset's, 0.25; scans 0.05].
     #[arg(long)]
     pub multistart_tie: Option<f64>,
     /// Skip the 24-rotation multi-start (centroid alignment only).
@@ -72,40 +92,40 @@ pub struct Common {
 }
 
 impl Common {
-    pub fn settings(&self) -> RegisterSettings {
-        let mut s = RegisterSettings {
-            seed: self.seed,
-            threads: self.threads,
-            robust_scale: self.robust_scale,
-            robust: self.robust,
-            multistart: !self.no_multistart,
-            ..Default::default()
+    /// The settings these flags ask for: the preset, then each flag given.
+    pub fn settings(&self) -> anyhow::Result<RegisterSettings> {
+        let mut s = RegisterSettings::preset(&self.preset)
+            .ok_or_else(|| anyhow::anyhow!("--preset: unknown preset {:?}", self.preset))?;
+        s.seed = self.seed;
+        s.threads = self.threads;
+        s.multistart.enabled &= !self.no_multistart;
+        let flag = if self.robust {
+            Some(RobustFlag::On)
+        } else {
+            self.robust_mode
         };
-        if let Some(a) = self.alternations {
-            s.alternations = a;
-        }
-        if let Some(o) = self.multistart_offset {
-            s.multistart_offset = o;
-        }
-        if let Some(r) = self.refine_steps {
-            s.fit.refine_steps = r;
-        }
-        if let Some(p) = self.prefit_steps {
-            s.fit.prefit_steps = p;
+        match (flag, self.robust_scale) {
+            (_, Some(scale)) => s.robust.mode = RobustMode::Fixed { scale },
+            (Some(RobustFlag::Off), _) => s.robust.mode = RobustMode::Off,
+            (Some(RobustFlag::On), _) => s.robust.mode = RobustMode::On,
+            (Some(RobustFlag::Auto), _) => s.robust.mode = RobustMode::AUTO,
+            (None, None) => {}
         }
         if let Some(f) = self.robust_below_fitness {
-            s.robust_below_fitness = f;
+            let RobustMode::Auto { below_fitness, .. } = &mut s.robust.mode else {
+                anyhow::bail!("--robust-below-fitness: only with --robust-mode auto");
+            };
+            *below_fitness = f;
         }
-        if let Some(t) = self.multistart_tie {
-            s.multistart_tie = t;
-        }
-        if let Some(n) = self.max_source_points {
-            s.max_source_points = n;
-        }
-        if let Some(n) = self.max_target_points {
-            s.max_target_points = n;
-        }
-        s
+        let set = |field: &mut usize, flag: Option<usize>| *field = flag.unwrap_or(*field);
+        set(&mut s.coarse_to_fine.alternations, self.alternations);
+        set(&mut s.fit.refine_steps, self.refine_steps);
+        set(&mut s.fit.prefit_steps, self.prefit_steps);
+        set(&mut s.max_source_points, self.max_source_points);
+        set(&mut s.max_target_points, self.max_target_points);
+        s.multistart.offset = self.multistart_offset.unwrap_or(s.multistart.offset);
+        s.multistart.tie = self.multistart_tie.unwrap_or(s.multistart.tie);
+        Ok(s)
     }
 }
 

@@ -3,6 +3,7 @@
 
 mod args;
 mod eval;
+mod output;
 
 use std::io::IsTerminal;
 use std::path::Path;
@@ -11,17 +12,16 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{Isometry3, Matrix4, Point3, SMatrix, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use sdfreg_core::io::{
     read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_point_cloud, Format,
 };
 use sdfreg_core::mesh::sample_surface;
-use sdfreg_core::protocol::pose_errors;
-use sdfreg_core::se3::isometry_from_matrix;
-use sdfreg_core::{
-    register_with_progress, Degeneracy, RegisterSettings, Registration, Role, Stage,
-};
+use sdfreg_core::se3::{isometry_from_matrix, pose_errors};
+use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Role, Stage};
+
+use output::{matrix_text, registration_json, summary_line};
 
 use args::{Cli, Command, DemoArgs, RegisterArgs};
 
@@ -71,8 +71,8 @@ pub fn register_with_bar(
     init: Option<&Isometry3<f64>>,
     settings: &RegisterSettings,
 ) -> Result<Registration> {
-    let total =
-        (settings.fit.prefit_steps + settings.alternations * settings.fit.refine_steps) as u64;
+    let alternations = settings.coarse_to_fine.alternations;
+    let total = (settings.fit.prefit_steps + alternations * settings.fit.refine_steps) as u64;
     let bar = progress_bar(total);
     let prefit = settings.fit.prefit_steps;
     let refine = settings.fit.refine_steps;
@@ -87,6 +87,7 @@ pub fn register_with_bar(
             bar.set_position((prefit + k * refine) as u64);
         }
         Stage::Final => bar.set_message("final LM"),
+        _ => {}
     };
     let r = register_with_progress(source, target, init, settings, &report);
     bar.finish_and_clear();
@@ -153,39 +154,6 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
     })
 }
 
-/// The 4×4 as four lines of four numbers, each written by `number`.
-pub fn matrix_lines(m: &Matrix4<f64>, number: impl Fn(f64) -> String) -> String {
-    matrix_rows(m)
-        .iter()
-        .map(|row| row.iter().map(|&v| number(v)).collect::<Vec<_>>().join(" ") + "\n")
-        .collect()
-}
-
-/// The 4×4 as four lines of four numbers with 9 decimals (what `register` prints).
-pub fn matrix_text(m: &Matrix4<f64>) -> String {
-    matrix_lines(m, |v| format!("{v:.9}"))
-}
-
-/// The free motions as JSON objects: `kind`, `axis`, `point`, `relative_eigenvalue`.
-pub fn free_motions_json(d: &Degeneracy) -> serde_json::Value {
-    d.free
-        .iter()
-        .map(|f| {
-            serde_json::json!({
-                "kind": f.kind.name(),
-                "axis": [f.axis.x, f.axis.y, f.axis.z],
-                "point": [f.point.x, f.point.y, f.point.z],
-                "relative_eigenvalue": f.relative_eigenvalue,
-            })
-        })
-        .collect()
-}
-
-/// A matrix as a list of rows (row-major nested lists in JSON).
-pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
-    (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
-}
-
 fn cmd_register(a: RegisterArgs) -> Result<()> {
     let inputs = [a.source.as_path(), a.target.as_path()];
     for out in [&a.output, &a.aligned].into_iter().flatten() {
@@ -225,7 +193,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     let source = read(&a.source)?;
     let target = read(&a.target)?;
     let init = a.init.as_deref().map(read_matrix).transpose()?;
-    let settings = a.common.settings();
+    let settings = a.common.settings()?;
     let r = register_with_bar(&source, &target, init.as_ref(), &settings).map_err(|e| {
         // Name the file a cloud error is about.
         let role = e
@@ -244,21 +212,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("json")) =>
         {
-            let json = serde_json::json!({
-                "transformation": matrix_rows(&m),
-                "converged": r.converged,
-                "stop_reason": format!("{:?}", r.stop_reason),
-                "fitness": r.fitness,
-                "robust": r.robust,
-                "inlier_rmse": r.inlier_rmse,
-                "inlier_distance": r.inlier_distance,
-                "iterations": r.iterations,
-                "cost": r.cost,
-                "information": matrix_rows(&r.information),
-                "constraint_eigenvalues": r.degeneracy.relative_eigenvalues,
-                "free_motions": free_motions_json(&r.degeneracy),
-                "time_ms": r.time.as_secs_f64() * 1e3,
-            });
+            let json = registration_json(&r);
             std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")
                 .with_context(|| format!("{}", path.display()))?;
         }
@@ -276,20 +230,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
             "sdfreg: warning: the clouds do not determine the {f}; the pose along it is arbitrary"
         );
     }
-    eprintln!(
-        "sdfreg: {} after {} LM iterations ({:?}), fitness {:.3}{}, inlier RMSE {:.3e}, {:.0} ms",
-        if r.converged {
-            "converged"
-        } else {
-            "not converged"
-        },
-        r.iterations,
-        r.stop_reason,
-        r.fitness,
-        if r.robust { " (robust kernel)" } else { "" },
-        r.inlier_rmse,
-        r.time.as_secs_f64() * 1e3
-    );
+    eprintln!("sdfreg: {}", summary_line(&r));
     Ok(())
 }
 
@@ -309,18 +250,11 @@ fn cmd_demo(a: DemoArgs) -> Result<()> {
         a.angle,
         truth_motion.translation.vector.norm()
     );
-    let r = register_with_bar(&source, &target, None, &a.common.settings())?;
+    let r = register_with_bar(&source, &target, None, &a.common.settings()?)?;
     let (re, te) = pose_errors(&r.t_target_source, &truth);
     print!("estimated t_target_source:\n{}", matrix_text(&r.matrix()));
     println!("rotation error {re:.3}°, translation error {te:.5} (shape ≈ 1.1 units across)");
-    println!(
-        "converged: {} ({:?}), LM iterations {}, fitness {:.3}, time {:.0} ms",
-        r.converged,
-        r.stop_reason,
-        r.iterations,
-        r.fitness,
-        r.time.as_secs_f64() * 1e3
-    );
+    println!("{}", summary_line(&r));
     if re > 5.0 {
         bail!("demo registration failed: rotation error {re:.2}° exceeds 5°");
     }

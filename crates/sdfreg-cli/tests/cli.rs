@@ -5,8 +5,8 @@ use std::process::Command;
 
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
-use sdfreg_core::protocol::pose_errors;
 use sdfreg_core::se3::isometry_from_matrix;
+use sdfreg_core::se3::pose_errors;
 
 fn sdfreg() -> Command {
     Command::new(env!("CARGO_BIN_EXE_sdfreg"))
@@ -98,9 +98,47 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     let ev: Vec<f64> = serde_json::from_value(v["constraint_eigenvalues"].clone()).unwrap();
     assert!(ev.len() == 6 && ev[5] == 1.0 && ev[0] > 0.002, "{ev:?}");
     assert_eq!(v["free_motions"], serde_json::json!([]));
+    // Python's names: snake_case stop reasons, and what each stage did.
+    let stop = v["stop_reason"].as_str().unwrap();
+    assert!(
+        ["small_step", "no_decrease", "max_iterations"].contains(&stop),
+        "{stop}"
+    );
+    assert_eq!(v["stages"]["initial"]["starts"], 168);
+    assert_eq!(v["stages"]["robust"]["kind"], "not_needed");
+    let polish = v["stages"]["polish"]["result"].as_str().unwrap();
+    assert!(["applied", "snapped"].contains(&polish), "{polish}");
+    assert!(v["stages"]["final_lm"]["change"]["rotation_deg"].is_f64());
     assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
     let moved = sdfreg_core::io::read_point_cloud(&aligned).unwrap();
     assert_eq!(moved.len(), 800);
+
+    // The preset for scans: the robust kernel from the start, said on stderr and in the JSON.
+    let scans = dir.path().join("scans.json");
+    let out = register_cmd(dir.path())
+        .args(QUICK)
+        .args(["--preset", "scans", "-o"])
+        .arg(&scans)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("(robust kernel)"));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&scans).unwrap()).unwrap();
+    assert_eq!(v["robust"], true);
+    assert_eq!(v["stages"]["robust"]["kind"], "from_start");
+    // A threshold for a re-run that the mode does not make is refused.
+    let out = register_cmd(dir.path())
+        .args(["--robust-mode", "on", "--robust-below-fitness", "0.5"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("--robust-below-fitness: only with --robust-mode auto"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 
     // Refuses to overwrite without --force, and never over an input.
     let again = register_cmd(dir.path())

@@ -5,6 +5,8 @@
 //! that say "normalised units" refer to that frame; results are mapped back to the user's.
 
 use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use rand::seq::index::sample;
+use rand_chacha::ChaCha8Rng;
 
 use crate::error::{Error, Role};
 
@@ -34,6 +36,21 @@ pub fn transformed_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f3
             [x.x as f32, x.y as f32, x.z as f32]
         })
         .collect()
+}
+
+/// At most `max` of `points`, drawn without replacement by `rng` and kept in their order; all of
+/// them when there are no more.
+pub(crate) fn subsample(
+    points: &[Point3<f64>],
+    max: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Point3<f64>> {
+    if points.len() <= max {
+        return points.to_vec();
+    }
+    let mut idx = sample(rng, points.len(), max).into_vec();
+    idx.sort_unstable();
+    idx.into_iter().map(|i| points[i]).collect()
 }
 
 /// Checks that every coordinate is finite and that there are at least `min` points.

@@ -15,35 +15,75 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Modules: [`mod@register`] (the coarse-to-fine loop, settings and result), [`sdf_fit`] (fitting Φ),
-//! [`mlp`] (the network with hand-written derivatives), [`lm`] (the SE(3) solver), [`polish`] (the final point-to-plane steps), [`shift_search`] (translations the SDF's valley
-//! hides), [`se3`]
-//! (exp/log maps), [`cloud`] (normalisation), [`mesh`] (surface sampling), [`degeneracy`] (free motions), [`io`] (PLY/XYZ), [`protocol`] (the paper's
-//! evaluation pairs and error measures), [`shapes`] (procedural test shapes).
+//! ## Entry points
+//! - [`register()`] / [`register_with_progress`]: one pair, the pipeline below; returns a
+//!   [`Registration`] (pose, convergence, fitness, information matrix, [`Degeneracy`], and
+//!   [`Stages`]: what each stage did) or an [`Error`].
+//! - [`RegisterSettings`]: every setting, one struct per stage — [`MlpSettings`],
+//!   [`FitSettings`], [`MultistartSettings`], [`CoarseToFineSettings`], [`LmSettings`],
+//!   [`RobustSettings`] (with the [`RobustMode`] choice), [`PolishSettings`],
+//!   [`ShiftSearchSettings`]; presets [`RegisterSettings::default`] and
+//!   [`RegisterSettings::partial_scans`].
+//! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
+//!   and place ([`IoError`]).
+//! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,
+//!   the unit-frame normalisation; [`mesh`]: sampling points on triangles; [`shapes`]:
+//!   procedural test shapes.
+//! - Building blocks (benchmarks, experiments): [`mlp`] (the network with hand-written
+//!   derivatives), [`sdf_fit`] (fitting Φ), [`lm`] (the SE(3) solver).
+//!
+//! ## The pipeline, in the order [`register()`] runs it
+//! 1. normalise both clouds into the target's unit frame (largest bounding-box side 1);
+//! 2. pre-fit Φ to the target, self-supervised (paper eq. 18–20): queries projected along
+//!    `Φ∇Φ/‖∇Φ‖` onto their nearest target point, `Φ = 0` on the target, an Eikonal term;
+//! 3. initial hypotheses: the caller's guess, or a multi-start over the cube group's 24
+//!    rotations (and shifted centroids), each refined by a few LM steps and scored on the target
+//!    points, near-ties to the least rotation;
+//! 4. coarse-to-fine (eq. 18-1): Φ refined with the moved source among its queries, alternating
+//!    with LM steps (eq. 9–13) per hypothesis; the best-fitting one is kept;
+//! 5. final LM on the frozen Φ;
+//! 6. robust re-run when needed ([`RobustMode::Auto`]): a poor least-squares fit is redone with
+//!    the Geman–McClure kernel;
+//! 7. polish: robust point-to-plane Gauss–Newton against local planes of the target points
+//!    (removes Φ's fitting floor), snapped onto the target's own points when the source lies on
+//!    them, undone if it moves too far;
+//! 8. shift search: a sparse occupancy cross-correlation proposes translations (a scene's
+//!    fragments slide along walls in a smooth Φ); each is polished, kept on a fitness gain;
+//! 9. measure: fitness, inlier RMSE, `JᵀJ` and the motions the data leave free.
 #![warn(missing_docs)]
 
 pub mod cloud;
-pub mod degeneracy;
-pub mod error;
 pub mod io;
 pub mod lm;
 pub mod mesh;
 pub mod mlp;
-pub mod polish;
-pub mod protocol;
-pub mod register;
 pub mod sdf_fit;
 pub mod se3;
 pub mod shapes;
-pub mod shift_search;
 
-pub use degeneracy::{Degeneracy, FreeMotion, MotionKind};
+mod coarse_to_fine;
+mod degeneracy;
+mod error;
+mod measure;
+mod multistart;
+mod polish;
+mod register;
+mod report;
+mod robust;
+mod settings;
+mod shift_search;
+
+pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use error::{Error, IoError, Role};
-pub use lm::{Kernel, LmSettings};
+pub use lm::{LmSettings, StopReason};
 pub use mlp::MlpSettings;
-pub use polish::PolishSettings;
-pub use register::{
-    register, register_with_progress, RegisterSettings, Registration, Stage, StopReason,
+pub use polish::{PolishSettings, SNAP_RATIO};
+pub use register::{register, register_with_progress, Registration, Stage};
+pub use report::{
+    CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
+    RobustReport, ShiftSearchReport, Stages,
 };
+pub use robust::{Kernel, RobustMode, RobustSettings, MAD_TO_SIGMA, SCALE_SIGMAS};
 pub use sdf_fit::FitSettings;
+pub use settings::{CoarseToFineSettings, MultistartSettings, RegisterSettings, MIN_POINTS};
 pub use shift_search::ShiftSearchSettings;

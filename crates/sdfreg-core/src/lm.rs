@@ -10,14 +10,19 @@
 //! `H` and `g` are summed over fixed chunks of [`BLOCK`] points, in chunk order, so the
 //! result is bit-identical for any number of threads.
 //!
-//! Entry points: [`LmSettings`], [`Kernel`], [`linearize`], [`cost`], [`Lm`].
+//! Entry points: [`LmSettings`], [`linearize`], [`cost`], [`Lm`] (one iteration:
+//! [`Lm::step`]; iterations until converged or a cap: [`Lm::run`], the one loop every stage
+//! uses). Kernels: [`crate::robust::Kernel`].
 
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::cloud::transformed_f32;
+use crate::error::Error;
 use crate::mlp::{with_workspace, Mlp, BLOCK};
+pub use crate::robust::Kernel;
 use crate::se3::exp_se3;
+use crate::settings::check;
 
 /// Settings of the Levenberg–Marquardt solver.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -49,27 +54,45 @@ impl Default for LmSettings {
     }
 }
 
-/// Robust kernel applied to the residuals (iteratively reweighted least squares).
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub enum Kernel {
-    /// Plain least squares, `ρ(r) = r²`.
-    L2,
-    /// Geman–McClure with scale `c` (normalised units): `ρ(r) = c² r² / (c² + r²)`,
-    /// weight `w = (c² / (c² + r²))²`.
-    GemanMcClure(f64),
+impl LmSettings {
+    /// Checks every field; the error names it (`lm.max_tries`, …).
+    pub fn validate(&self) -> Result<(), Error> {
+        check::positive("lm.initial_lambda", self.initial_lambda)?;
+        check::at_least("lm.lambda_decrease", self.lambda_decrease, 1.0)?;
+        check::at_least("lm.lambda_increase", self.lambda_increase, 1.0)?;
+        check::count_at_least("lm.max_tries", self.max_tries, 1)?;
+        check::non_negative("lm.rotation_tolerance", self.rotation_tolerance)?;
+        check::non_negative("lm.translation_tolerance", self.translation_tolerance)
+    }
 }
 
-impl Kernel {
-    #[inline]
-    fn rho_weight(&self, r: f64) -> (f64, f64) {
-        match *self {
-            Kernel::L2 => (r * r, 1.0),
-            Kernel::GemanMcClure(c) => {
-                let c2 = c * c;
-                let q = c2 / (c2 + r * r);
-                (r * r * q, q * q)
-            }
+/// Why an iterative stage (the LM, the polish's Gauss–Newton) stopped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum StopReason {
+    /// The last step was below both tolerances.
+    SmallStep,
+    /// No damping lowered the cost any more (a local minimum), or the system could not be
+    /// solved.
+    NoDecrease,
+    /// The iteration cap ran out before convergence.
+    MaxIterations,
+}
+
+impl StopReason {
+    /// Snake-case name: `small_step`, `no_decrease` or `max_iterations`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            StopReason::SmallStep => "small_step",
+            StopReason::NoDecrease => "no_decrease",
+            StopReason::MaxIterations => "max_iterations",
         }
+    }
+
+    /// Whether the stage converged (anything but running out of iterations).
+    pub fn converged(&self) -> bool {
+        *self != StopReason::MaxIterations
     }
 }
 
@@ -173,8 +196,8 @@ pub enum StepOutcome {
 pub struct Lm {
     /// Current pose mapping the (unit-frame) source into the (unit-frame) target.
     pub pose: Isometry3<f64>,
-    /// Current damping.
-    pub lambda: f64,
+    /// Current damping (reset to the initial one by [`Lm::run`]).
+    lambda: f64,
     /// Cost at `pose` after the last iteration.
     pub cost: f64,
     /// Iterations run.
@@ -195,7 +218,7 @@ impl Lm {
     }
 
     /// Whether a step of this size counts as converged.
-    pub fn is_converged(&self, outcome: &StepOutcome) -> bool {
+    fn is_converged(&self, outcome: &StepOutcome) -> bool {
         match outcome {
             StepOutcome::Accepted {
                 rotation,
@@ -206,6 +229,27 @@ impl Lm {
             }
             StepOutcome::NoDecrease => true,
         }
+    }
+
+    /// Up to `max_steps` iterations against `mlp`, from the initial damping, until a step is
+    /// below both tolerances or no damping lowers the cost. `MaxIterations` when the cap ran out
+    /// (also for `max_steps` = 0).
+    pub fn run(
+        &mut self,
+        mlp: &Mlp,
+        source: &[Point3<f64>],
+        kernel: Kernel,
+        max_steps: usize,
+    ) -> StopReason {
+        self.lambda = self.settings.initial_lambda;
+        for _ in 0..max_steps {
+            match self.step(mlp, source, kernel) {
+                StepOutcome::NoDecrease => return StopReason::NoDecrease,
+                outcome if self.is_converged(&outcome) => return StopReason::SmallStep,
+                _ => {}
+            }
+        }
+        StopReason::MaxIterations
     }
 
     /// One LM iteration against `mlp`.
@@ -285,16 +329,5 @@ mod tests {
             );
         }
         assert!((lin.h - jac * jac.transpose()).norm() < 1e-6 * (1.0 + lin.h.norm()));
-    }
-
-    #[test]
-    fn robust_weights_are_the_derivative_of_rho() {
-        let k = Kernel::GemanMcClure(0.05);
-        for r in [-0.2, -0.01, 0.0, 0.03, 0.4] {
-            let h = 1e-6;
-            let drho = (k.rho_weight(r + h).0 - k.rho_weight(r - h).0) / (2.0 * h);
-            // IRLS: ρ'(r) = 2 w r.
-            assert!((drho - 2.0 * k.rho_weight(r).1 * r).abs() < 1e-6, "r = {r}");
-        }
     }
 }

@@ -34,6 +34,17 @@ pub struct MlpSettings {
     pub init_radius: f32,
 }
 
+impl MlpSettings {
+    /// Checks every field; the error names it (`mlp.width`, …).
+    pub fn validate(&self) -> Result<(), crate::error::Error> {
+        use crate::settings::check;
+        check::count_at_least("mlp.width", self.width, 1)?;
+        check::count_at_least("mlp.depth", self.depth, 1)?;
+        check::positive("mlp.beta", self.beta as f64)?;
+        check::positive("mlp.init_radius", self.init_radius as f64)
+    }
+}
+
 impl Default for MlpSettings {
     fn default() -> Self {
         Self {
@@ -326,11 +337,6 @@ impl Mlp {
     pub fn params_mut(&mut self) -> &mut [f32] {
         &mut self.params
     }
-    /// Multiply–add operations ×2 of one primal forward pass per point (`2 Σ in·out`).
-    pub fn flops_per_point(&self) -> usize {
-        self.layers.iter().map(|l| 2 * l.n_in * l.n_out).sum()
-    }
-
     /// An empty workspace sized on first use.
     pub fn workspace(&self) -> Workspace {
         Workspace::default()

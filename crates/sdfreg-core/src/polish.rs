@@ -13,10 +13,10 @@
 //!    lays the source onto the target's own points (a copy or a subset of the target cloud).
 //!
 //! Both use the Jacobian row `[xᵢ × nᵢ; nᵢ]` (the same left twist as the SDF's LM) and
-//! Geman–McClure weights, and leave out the points farther than
+//! Geman–McClure weights ([`crate::robust::Kernel`]), and leave out the points farther than
 //! [`PolishSettings::max_distance`] from the target (outside its coverage). The kernel's scale is
-//! 3 robust standard deviations of |r|; in stage 1 it is re-estimated on the residuals under it
-//! until it settles, because source points near the edge of the target's coverage (half of a
+//! 3 robust standard deviations of |r| ([`crate::robust::mad_scale`]); in stage 1 it is
+//! re-estimated on the residuals under it until it settles ([`crate::robust::inlier_scale`]), because source points near the edge of the target's coverage (half of a
 //! partial scan's points) inflate the plain median: on the bunny's 49 %-overlap pair
 //! bun180→bun090 the polish stopped at 2.0° with the median and reaches 0.28° with the
 //! re-estimate, in ≤ 50 iterations (15 got 1.9°, 30 got 0.8°). Per-point terms are summed in a
@@ -33,16 +33,23 @@ use kiddo::SquaredEuclidean;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, SymmetricEigen, Vector3, Vector6};
 use rayon::prelude::*;
 
-use crate::lm::jacobian_row;
+use crate::error::Error;
+use crate::lm::{jacobian_row, StopReason};
+use crate::robust::{inlier_scale, mad_scale, Kernel};
 use crate::sdf_fit::Tree;
 use crate::se3::{exp_se3, log_se3};
+use crate::settings::check;
 
 /// The snap stage's result is kept when the moved source points' median distance to the nearest
 /// target point is below this fraction of the target's median point spacing (they coincide).
 pub const SNAP_RATIO: f64 = 0.01;
 
-/// Settings of the point-to-plane polish. Lengths are normalised (fractions of the target's
-/// largest bounding-box side).
+/// Settings of the final polish: robust point-to-plane Gauss–Newton steps against planes fitted
+/// to the target points nearest each moved source point (Φ is a smooth fit whose minimum sits a
+/// few tenths of a degree from the pose that lays the source onto the target's points), a
+/// second pass with only the points near the target, then a snap onto the nearest target points
+/// kept only when the source lies on them; undone if it moves the source too far. Lengths are
+/// normalised (fractions of the target's largest bounding-box side).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PolishSettings {
     /// Gauss–Newton iterations at most, per stage; 0 disables the polish. Default 50 (partial
@@ -63,6 +70,13 @@ pub struct PolishSettings {
     /// `max_distance` still pulls: on the 3DMatch pair the translation error falls from
     /// 0.118 m to 0.080 m.
     pub near_spacings: f64,
+    /// Weight of the prior towards the SDF's pose in the local-plane stage, relative to the
+    /// trace of the normal matrix. Default 10⁻⁴: keeps directions the planes do not constrain
+    /// (a surface of revolution's spin, an open tube's slide) where Φ put them.
+    pub prior_weight: f64,
+    /// A Gauss–Newton stage has converged when its step is below this, both in rotation
+    /// (radians) and translation (normalised units). Default 10⁻⁷.
+    pub tolerance: f64,
 }
 
 impl Default for PolishSettings {
@@ -73,7 +87,21 @@ impl Default for PolishSettings {
             max_distance: 0.05,
             max_shift: 0.05,
             near_spacings: 3.0,
+            prior_weight: 1e-4,
+            tolerance: 1e-7,
         }
+    }
+}
+
+impl PolishSettings {
+    /// Checks every field; the error names it (`polish.neighbours`, …).
+    pub fn validate(&self) -> Result<(), Error> {
+        check::count_at_least("polish.neighbours", self.neighbours, 3)?;
+        check::positive("polish.max_distance", self.max_distance)?;
+        check::non_negative("polish.max_shift", self.max_shift)?;
+        check::non_negative("polish.near_spacings", self.near_spacings)?;
+        check::non_negative("polish.prior_weight", self.prior_weight)?;
+        check::non_negative("polish.tolerance", self.tolerance)
     }
 }
 
@@ -82,8 +110,11 @@ impl Default for PolishSettings {
 pub struct PolishOutcome {
     /// The pose after the polish (the input pose when it was undone).
     pub pose: Isometry3<f64>,
-    /// Iterations run (both stages).
+    /// Iterations run (all stages).
     pub iterations: usize,
+    /// Why the stage that set [`Self::pose`] stopped (the snap when it was kept, else the last
+    /// local-plane pass).
+    pub stop_reason: StopReason,
     /// Whether the source was found on the target's own points and snapped onto them.
     pub snapped: bool,
     /// Whether the polish moved too far and was undone.
@@ -141,18 +172,18 @@ enum Residuals {
 }
 
 /// Robust Gauss–Newton steps on the residuals `residual(x) → (r, n)` of the moved source points
-/// (row `[x × n; n]`); returns the pose and the iterations run.
+/// (row `[x × n; n]`); returns the pose, the iterations run and why it stopped.
 fn gauss_newton(
     source: &[Point3<f64>],
     pose: Isometry3<f64>,
-    iterations: usize,
+    s: &PolishSettings,
     stage: Residuals,
     residual: impl Fn(&Point3<f64>) -> Option<(f64, Vector3<f64>)> + Sync,
-) -> (Isometry3<f64>, usize) {
+) -> (Isometry3<f64>, usize, StopReason) {
     let start = pose;
     let mut pose = pose;
     let mut done = 0;
-    while done < iterations {
+    while done < s.iterations {
         done += 1;
         let terms: Vec<Option<(f64, Vector6<f64>)>> = source
             .par_iter()
@@ -164,30 +195,28 @@ fn gauss_newton(
             .collect();
         let used: Vec<&(f64, Vector6<f64>)> = terms.iter().flatten().collect();
         if used.len() < 6 {
-            break;
+            return (pose, done, StopReason::NoDecrease);
         }
         let mut abs: Vec<f64> = used.iter().map(|t| t.0.abs()).collect();
         abs.sort_by(f64::total_cmp);
-        let median_scale = 3.0 * 1.4826 * abs[abs.len() / 2];
-        let c = if stage == Residuals::Planes {
-            inlier_scale(&abs, median_scale)
+        let kernel = Kernel::GemanMcClure(if stage == Residuals::Planes {
+            inlier_scale(&abs)
         } else {
-            median_scale.max(1e-9)
-        };
+            mad_scale(&abs).max(1e-9)
+        });
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
         for (r, j) in used {
-            let u = r / c;
-            let w = 1.0 / ((1.0 + u * u) * (1.0 + u * u));
+            let w = kernel.rho_weight(*r).1;
             h += w * j * j.transpose();
             g += w * r * j;
         }
-        // Planes: a weak prior (10⁻⁴ × trace) towards the starting pose keeps directions the
-        // planes do not constrain where the SDF put them: a surface of revolution's spin, or an
-        // open tube's slide along its axis (whose wall normals are all radial, while Φ also sees
-        // the rims). A prior, not only a damped step: the pose must not creep along such a
-        // direction however many iterations run.
-        let damping = 1e-4 * h.trace() + 1e-15;
+        // Planes: a weak prior (`prior_weight` × trace) towards the starting pose keeps
+        // directions the planes do not constrain where the SDF put them: a surface of
+        // revolution's spin, or an open tube's slide along its axis (whose wall normals are all
+        // radial, while Φ also sees the rims). A prior, not only a damped step: the pose must
+        // not creep along such a direction however many iterations run.
+        let damping = s.prior_weight * h.trace() + 1e-15;
         let drift = match stage {
             Residuals::Planes => log_se3(&(pose * start.inverse())),
             Residuals::Points => Vector6::zeros(),
@@ -197,36 +226,16 @@ fn gauss_newton(
             g[k] += damping * drift[k];
         }
         let Some(delta) = h.cholesky().map(|ch| -ch.solve(&g)) else {
-            break;
+            return (pose, done, StopReason::NoDecrease);
         };
         pose = exp_se3(&delta) * pose;
-        if delta.fixed_rows::<3>(0).norm() < 1e-7 && delta.fixed_rows::<3>(3).norm() < 1e-7 {
-            break;
+        if delta.fixed_rows::<3>(0).norm() < s.tolerance
+            && delta.fixed_rows::<3>(3).norm() < s.tolerance
+        {
+            return (pose, done, StopReason::SmallStep);
         }
     }
-    (pose, done)
-}
-
-/// Geman–McClure scale for the sorted residual magnitudes `abs`: 3 robust standard deviations
-/// (1.4826 × median), re-estimated on the residuals below the previous scale until it settles.
-/// The plain median is inflated when half the source lies outside the target's coverage
-/// (a partial scan's boundary points within the distance gate); the re-estimate is not.
-fn inlier_scale(abs: &[f64], median_scale: f64) -> f64 {
-    let mut c = median_scale;
-    for _ in 0..20 {
-        let n = abs.partition_point(|&a| a < c);
-        if n < 6 {
-            break;
-        }
-        // The median of a Gaussian truncated at c is below the untruncated one: for c ≥ 3σ
-        // by under 2 %, which the loop's fixed point absorbs.
-        let next = 3.0 * 1.4826 * abs[n / 2];
-        if next >= c * 0.999 {
-            break;
-        }
-        c = next;
-    }
-    c.max(1e-9)
+    (pose, done, StopReason::MaxIterations)
 }
 
 /// Median over `points` of the distance to the nearest target point (excluding a point's own
@@ -269,13 +278,13 @@ pub fn polish(
     if gate < s.max_distance {
         gates.push(gate);
     }
-    let (mut pose, mut iterations) = (start, 0);
+    let (mut pose, mut iterations, mut stop_reason) = (start, 0, StopReason::MaxIterations);
     for d in gates {
         let d2 = d * d;
-        let (p, n) = gauss_newton(source, pose, s.iterations, Residuals::Planes, |x| {
+        let (p, n, stop) = gauss_newton(source, pose, s, Residuals::Planes, |x| {
             local_plane(target, tree, x, k, d2)
         });
-        pose = p;
+        (pose, stop_reason) = (p, stop);
         iterations += n;
     }
     // Snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
@@ -287,7 +296,7 @@ pub fn polish(
     if s.iterations > 0 {
         let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
             (0..target.len()).map(|_| OnceLock::new()).collect();
-        let (candidate, n) = gauss_newton(source, pose, s.iterations, Residuals::Points, |x| {
+        let (candidate, n, stop) = gauss_newton(source, pose, s, Residuals::Points, |x| {
             let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
             if nn.distance as f64 > s.max_distance * s.max_distance {
                 return None;
@@ -306,7 +315,7 @@ pub fn polish(
             [x.x as f32, x.y as f32, x.z as f32]
         });
         if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
-            pose = candidate;
+            (pose, stop_reason) = (candidate, stop);
             snapped = true;
         }
     }
@@ -319,6 +328,7 @@ pub fn polish(
     PolishOutcome {
         pose: if undone { start } else { pose },
         iterations,
+        stop_reason,
         snapped,
         undone,
     }

@@ -67,6 +67,23 @@ pub struct FitSettings {
     pub max_source_queries: usize,
 }
 
+impl FitSettings {
+    /// Checks every field; the error names it (`fit.refine_lr`, …).
+    pub fn validate(&self) -> Result<(), crate::error::Error> {
+        use crate::settings::check;
+        check::positive("fit.prefit_lr", self.prefit_lr as f64)?;
+        check::positive("fit.refine_lr", self.refine_lr as f64)?;
+        check::count_at_least("fit.batch_queries", self.batch_queries, 1)?;
+        check::count_at_least("fit.refine_batch_queries", self.refine_batch_queries, 1)?;
+        check::count_at_least("fit.query_pool", self.query_pool, 1)?;
+        check::count_at_least("fit.sigma_neighbour", self.sigma_neighbour, 1)?;
+        check::count_at_least("fit.sigma_sample", self.sigma_sample, 2)?;
+        check::non_negative("fit.lambda_surface", self.lambda_surface as f64)?;
+        check::non_negative("fit.lambda_eikonal", self.lambda_eikonal as f64)?;
+        check::count_at_least("fit.max_source_queries", self.max_source_queries, 1)
+    }
+}
+
 impl Default for FitSettings {
     fn default() -> Self {
         Self {
@@ -154,7 +171,6 @@ pub struct SdfFitter {
     pool: Vec<([f32; 3], [f32; 3])>,
     source_queries: Vec<([f32; 3], [f32; 3])>,
     rng: ChaCha8Rng,
-    steps: usize,
     /// Per-block workspace and gradient, kept between steps (no allocation in the loop).
     scratch: Vec<(Workspace, Vec<f32>)>,
 }
@@ -250,7 +266,6 @@ impl SdfFitter {
             pool,
             source_queries: Vec::new(),
             rng,
-            steps: 0,
             scratch: Vec::new(),
         }
     }
@@ -268,11 +283,6 @@ impl SdfFitter {
     /// The k-d tree over the target points.
     pub fn tree(&self) -> &Tree {
         &self.tree
-    }
-
-    /// Adam steps taken so far.
-    pub fn steps(&self) -> usize {
-        self.steps
     }
 
     /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
@@ -390,7 +400,6 @@ impl SdfFitter {
             }
         }
         self.adam.step(self.mlp.params_mut(), &grad, lr);
-        self.steps += 1;
         loss
     }
 }

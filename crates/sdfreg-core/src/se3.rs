@@ -144,6 +144,18 @@ pub fn log_se3(t: &Isometry3<f64>) -> Vector6<f64> {
     Vector6::new(w.x, w.y, w.z, v.x, v.y, v.z)
 }
 
+/// Rotation error (geodesic, degrees) and translation error (Euclidean, the poses' units) of
+/// `estimate` against `truth`.
+pub fn pose_errors(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f64) {
+    let r = rotation_angle(
+        &estimate.rotation.to_rotation_matrix(),
+        &truth.rotation.to_rotation_matrix(),
+    )
+    .to_degrees();
+    let t = (estimate.translation.vector - truth.translation.vector).norm();
+    (r, t)
+}
+
 /// Geodesic angle (radians, in `[0, π]`) of the relative rotation `aᵀ b`.
 pub fn rotation_angle(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
     let m = a.matrix().transpose() * b.matrix();

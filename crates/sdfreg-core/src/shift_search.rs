@@ -10,18 +10,27 @@
 //! the target's points. Both clouds are binned into cubes of [`ShiftSearchSettings::voxel`]; every
 //! pair (occupied source cube, occupied target cube) votes for their offset; each offset's score
 //! is the vote sum over its 3×3×3 neighbourhood (±1 cube of tolerance). The best local maxima
-//! within [`ShiftSearchSettings::radius`] are the candidates; [`crate::register()`] polishes each
-//! and keeps one only if it raises the fitness by [`ShiftSearchSettings::min_gain`].
+//! within [`ShiftSearchSettings::radius`] are the candidates; [`search`] polishes each and keeps
+//! one only if it raises the fitness by [`ShiftSearchSettings::min_gain`].
 //! On the 3DMatch pair the best peak lies 2–7 cm from the needed offset (cubes of 2.5–5 cm).
 //! No correspondences are formed: it is a cross-correlation of two occupancy grids, counted
 //! sparsely.
 //!
-//! Entry point: [`occupancy_peaks`].
+//! Entry points: [`occupancy_peaks`], [`search`] (the stage of [`crate::register()`]).
 
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use rayon::prelude::*;
 
-/// Settings of the translation search. Lengths are normalised (fractions of the target's largest
+use crate::cloud::transformed_f32;
+use crate::measure::inlier_stats;
+use crate::polish::{polish, PolishOutcome, PolishSettings};
+use crate::sdf_fit::Tree;
+
+/// Settings of the translation search after the polish: with the rotation kept, both clouds
+/// are binned into cubes and every pair of occupied cubes votes for its offset (a sparse
+/// occupancy cross-correlation, no correspondences); the best peaks are polished, and one
+/// replaces the pose only on a fitness gain. It finds the slide along a scene's walls that a
+/// smooth Φ does not see. Lengths are normalised (fractions of the target's largest
 /// bounding-box side).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ShiftSearchSettings {
@@ -44,6 +53,16 @@ impl Default for ShiftSearchSettings {
             candidates: 4,
             min_gain: 0.02,
         }
+    }
+}
+
+impl ShiftSearchSettings {
+    /// Checks every field; the error names it (`shift_search.voxel`, …).
+    pub fn validate(&self) -> Result<(), crate::error::Error> {
+        use crate::settings::check;
+        check::non_negative("shift_search.radius", self.radius)?;
+        check::positive("shift_search.voxel", self.voxel)?;
+        check::in_unit_interval("shift_search.min_gain", self.min_gain)
     }
 }
 
@@ -159,6 +178,61 @@ pub fn occupancy_peaks(
             score: v,
         })
         .collect()
+}
+
+/// The pose the search settles on.
+pub(crate) struct Searched {
+    /// The pose: a polished peak, or the input pose when none fitted clearly better.
+    pub pose: Isometry3<f64>,
+    /// Fitness and inlier RMS (normalised) at [`Self::pose`].
+    pub fitness: f64,
+    /// RMS distance of the inliers, normalised units.
+    pub inlier_rms: f64,
+    /// Peaks tried.
+    pub peaks: usize,
+    /// The polish of the peak taken, if one was.
+    pub taken: Option<PolishOutcome>,
+    /// Fitness at the input pose.
+    pub start_fitness: f64,
+}
+
+/// The shift-search stage: from `pose` (unit frame, maps `source` onto the `target` points),
+/// translations that lay clearly more source points within `inlier_distance` of the target,
+/// each polished, kept on a fitness gain of [`ShiftSearchSettings::min_gain`].
+pub(crate) fn search(
+    source: &[Point3<f64>],
+    target: &[[f32; 3]],
+    tree: &Tree,
+    pose: &Isometry3<f64>,
+    s: &ShiftSearchSettings,
+    polish_settings: &PolishSettings,
+    inlier_distance: f64,
+) -> Searched {
+    let thr2 = inlier_distance * inlier_distance;
+    let moved = transformed_f32(source, pose);
+    let (fitness, inlier_rms) = inlier_stats(tree, &moved, thr2);
+    let peaks = occupancy_peaks(&moved, target, s);
+    let mut out = Searched {
+        pose: *pose,
+        fitness,
+        inlier_rms,
+        peaks: peaks.len(),
+        taken: None,
+        start_fitness: fitness,
+    };
+    let mut best = fitness + s.min_gain;
+    for peak in peaks {
+        let start = Translation3::from(peak.offset) * pose;
+        let candidate = polish(source, target, tree, &start, polish_settings);
+        let (f, rms) = inlier_stats(tree, &transformed_f32(source, &candidate.pose), thr2);
+        if f >= best {
+            best = f;
+            (out.fitness, out.inlier_rms) = (f, rms);
+            out.pose = candidate.pose;
+            out.taken = Some(candidate);
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -36,8 +36,10 @@ fn float_array<'py>(
         }
     }
     let numpy = py.import("numpy")?;
+    // C order, native-endian float64, aligned: views, big-endian data and buffers at odd
+    // offsets (np.frombuffer, arrays unpickled by Dask) are copied into one.
     let converted = numpy
-        .call_method1("ascontiguousarray", (obj, "float64"))
+        .call_method1("require", (obj, "float64", "CA"))
         .map_err(|e| error::argument(name, format!("expected {expected} of numbers ({e})")))?;
     let untyped = converted.cast::<PyUntypedArray>()?;
     let shape = untyped.shape();
@@ -56,9 +58,17 @@ fn float_array<'py>(
     Ok(converted.cast_into::<PyArray2<f64>>()?)
 }
 
-/// An (N, 3) array-like as points (copied). Finiteness and the minimum count are the core's
-/// checks, which name the cloud and the point.
+/// An (N, 3) array-like as points (copied); an object with a `.points` attribute (an Open3D
+/// `PointCloud`) gives that. Finiteness and the minimum count are the core's checks, which name
+/// the cloud and the point.
 pub fn points(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Point3<f64>>> {
+    let cloud;
+    let obj = if !obj.is_instance_of::<PyUntypedArray>() && obj.hasattr("points")? {
+        cloud = obj.getattr("points")?;
+        &cloud
+    } else {
+        obj
+    };
     let array = float_array(obj, name, None, 3)?;
     let ro = array.readonly();
     let data = ro.as_slice()?;

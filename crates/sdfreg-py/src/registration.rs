@@ -17,13 +17,14 @@ impl PyRegistration {
         convert::matrix4(py, &self.0.matrix())
     }
 
-    /// Whether the final Levenberg–Marquardt steps converged.
+    /// Whether the stage that set the final pose converged (the polish's last pass when it was
+    /// applied, else the final Levenberg–Marquardt steps).
     #[getter]
     fn converged(&self) -> bool {
         self.0.converged
     }
 
-    /// Why it stopped: "small_step", "no_decrease" or "max_iterations".
+    /// Why that stage stopped: "small_step", "no_decrease" or "max_iterations".
     #[getter]
     fn stop_reason(&self) -> &'static str {
         self.0.stop_reason.name()
@@ -35,8 +36,8 @@ impl PyRegistration {
         self.0.fitness
     }
 
-    /// Whether the robust kernel produced this result (``robust=True``, or least squares fitted
-    /// below ``robust_below_fitness`` and the robust run fitted better).
+    /// Whether the robust kernel produced this result (``robust="on"``, or least squares fitted
+    /// poorly and the robust re-run fitted better; ``stages["robust"]`` says which).
     #[getter]
     fn robust(&self) -> bool {
         self.0.robust
@@ -89,6 +90,16 @@ impl PyRegistration {
             .cloned()
             .map(PyFreeMotion)
             .collect()
+    }
+
+    /// What each stage did, as a dict: ``initial``, ``coarse_to_fine``, ``final_lm``,
+    /// ``robust``, ``polish``, ``shift_search`` (each stage's ``change``: ``rotation_deg`` and
+    /// ``translation``, how far it moved the source).
+    #[getter]
+    fn stages<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let json = serde_json::to_string(&self.0.stages)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        py.import("json")?.call_method1("loads", (json,))
     }
 
     /// Wall time of the registration, seconds.

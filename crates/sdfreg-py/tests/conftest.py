@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import sdfreg
+
 
 def blob(n: int, rng: np.random.Generator) -> np.ndarray:
     """An asymmetric smooth closed surface about 1 across (no symmetry to confuse the pose)."""
@@ -52,7 +54,10 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 
 # Settings that keep a registration short where accuracy is not what a test is about.
-QUICK = dict(prefit_steps=150, alternations=3, refine_steps=20, final_lm_steps=5)
+QUICK = dict(
+    fit=sdfreg.FitSettings(prefit_steps=150, refine_steps=20),
+    coarse_to_fine=sdfreg.CoarseToFineSettings(alternations=3, final_lm_steps=5),
+)
 
 
 @pytest.fixture(scope="session")

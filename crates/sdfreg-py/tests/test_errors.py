@@ -69,16 +69,40 @@ def test_bad_initial_guess(cloud, init, message) -> None:
 
 
 @pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: sdfreg.CoarseToFineSettings(alternations=-1), "coarse_to_fine.alternations: must be a count ≥ 0, got -1"),
+        (lambda: sdfreg.MlpSettings(beta=0.0), "invalid setting `mlp.beta`: must be a positive finite number, got 0"),
+        (lambda: sdfreg.MlpSettings(width=0), "invalid setting `mlp.width`: must be ≥ 1, got 0"),
+        (lambda: sdfreg.FitSettings(prefit_lr=0.0), "invalid setting `fit.prefit_lr`"),
+        (lambda: sdfreg.LmSettings(max_tries=0), "invalid setting `lm.max_tries`: must be ≥ 1, got 0"),
+        (lambda: sdfreg.LmSettings(rotation_tolerance=float("nan")), "`lm.rotation_tolerance`"),
+        (lambda: sdfreg.MultistartSettings(keep=0), "invalid setting `multistart.keep`"),
+        (lambda: sdfreg.MultistartSettings(points=-3), "multistart.points: must be a count"),
+        (lambda: sdfreg.PolishSettings(neighbours=2), "invalid setting `polish.neighbours`: must be ≥ 3"),
+        (lambda: sdfreg.ShiftSearchSettings(voxel=0.0), "invalid setting `shift_search.voxel`"),
+        (lambda: sdfreg.RobustSettings(mode="fixed"), 'robust.scale: mode="fixed" needs a scale'),
+        (lambda: sdfreg.RobustSettings(mode="fixed", scale=-0.1), "invalid setting `robust.mode.scale`"),
+        (lambda: sdfreg.RobustSettings(scale=0.1), 'robust.scale: only with mode="fixed"'),
+        (lambda: sdfreg.RobustSettings(mode="sometimes"), 'robust.mode: expected "auto", "on", "off" or "fixed"'),
+        (lambda: sdfreg.RobustSettings(gain=0.5), "invalid setting `robust.mode.gain`"),
+    ],
+)
+def test_bad_settings_objects_raise_value_error_naming_the_field(make, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+@pytest.mark.parametrize(
     "settings, message",
     [
-        (dict(alternations=-1), "alternations: must be a count ≥ 0, got -1"),
         (dict(seed=-5), "seed: must be an integer ≥ 0"),
-        (dict(beta=0.0), "invalid setting `mlp.beta`"),
-        (dict(width=0), "invalid setting `mlp`"),
-        (dict(robust_scale=-0.1), "invalid setting `robust_scale`"),
         (dict(inlier_distance=float("nan")), "invalid setting `inlier_distance`"),
-        (dict(prefit_lr=0.0), "learning rates must be positive"),
-        (dict(max_source_points=3), "invalid setting `max_\\*_points`"),
+        (dict(max_source_points=3), "invalid setting `max_source_points`: must be ≥ 10, got 3"),
+        (dict(free_motion_ratio=1.5), "invalid setting `free_motion_ratio`"),
+        (dict(preset="fast"), "preset: expected one of"),
+        (dict(robust="sometimes"), 'robust.mode: expected "auto"'),
+        (dict(robust=True), 'robust: expected "auto", "on", "off" or a RobustSettings, got True'),
     ],
 )
 def test_bad_settings(cloud, settings, message) -> None:
@@ -86,40 +110,39 @@ def test_bad_settings(cloud, settings, message) -> None:
         sdfreg.register(cloud, cloud, **settings)
 
 
+def test_a_settings_object_of_the_wrong_group_is_a_type_error(cloud) -> None:
+    with pytest.raises(TypeError, match="lm"):
+        sdfreg.register(cloud, cloud, lm=sdfreg.FitSettings())  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize(
     "settings",
     [
-        dict(batch_surface=0),
-        dict(batch_source=0),
-        dict(refine_batch_queries=0),
-        dict(sigma_neighbour=0),
-        dict(sigma_neighbour=5000),
-        dict(sigma_sample=0),
-        dict(query_pool=1),
-        dict(multistart_points=0),
-        dict(multistart_keep=0),
-        dict(hypotheses=0),
-        dict(alternations=0),
-        dict(refine_steps=0, final_lm_steps=0),
-        dict(max_tries=0),
-        dict(depth=1, width=1),
-        dict(multistart_lm_steps=0, multistart_refine_steps=0),
-        dict(max_source_queries=0),
-        dict(lambda_decrease=0.5, lambda_increase=0.5),
-        dict(rotation_tolerance=0.0, translation_tolerance=0.0),
-        dict(initial_lambda=0.0),
-        dict(multistart_truncation=0.0, multistart_tie=0.0),
-        dict(lambda_surface=0.0, lambda_eikonal=0.0),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, batch_surface=0)),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, batch_source=0)),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, sigma_neighbour=5000)),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, query_pool=1)),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, max_source_queries=1)),
+        dict(fit=sdfreg.FitSettings(prefit_steps=50, lambda_surface=0.0, lambda_eikonal=0.0)),
+        dict(multistart=sdfreg.MultistartSettings(points=1, hypotheses=1, keep=1)),
+        dict(multistart=sdfreg.MultistartSettings(lm_steps=0, refine_steps=0)),
+        dict(multistart=sdfreg.MultistartSettings(tie=0.0, distinct_rotation_deg=0.0)),
+        dict(coarse_to_fine=sdfreg.CoarseToFineSettings(alternations=0)),
+        dict(coarse_to_fine=sdfreg.CoarseToFineSettings(alternations=1, final_lm_steps=0)),
+        dict(mlp=sdfreg.MlpSettings(depth=1, width=1)),
+        dict(lm=sdfreg.LmSettings(lambda_decrease=1.0, lambda_increase=1.0)),
+        dict(lm=sdfreg.LmSettings(rotation_tolerance=0.0, translation_tolerance=0.0)),
+        dict(polish=sdfreg.PolishSettings(iterations=0)),
+        dict(shift_search=sdfreg.ShiftSearchSettings(radius=0.0)),
+        dict(robust=sdfreg.RobustSettings(mode="fixed", scale=1e-9)),
     ],
 )
-def test_extreme_settings_raise_value_error_or_register(cloud, settings) -> None:
-    """Edge values either run or are refused with a ValueError; the result is a valid pose."""
-    merged = {**QUICK, "prefit_steps": 50, **settings}
-    try:
-        result = sdfreg.register(cloud, cloud, **merged)
-    except ValueError as e:
-        assert "invalid setting" in str(e)
-        return
+def test_extreme_settings_register_to_a_valid_pose(cloud, settings) -> None:
+    """Edge values that pass validation run to a valid rigid pose."""
+    merged = {**QUICK, **settings}
+    if "fit" not in settings:
+        merged["fit"] = sdfreg.FitSettings(prefit_steps=50, refine_steps=20)
+    result = sdfreg.register(cloud, cloud, **merged)
     t = result.transformation
     assert np.isfinite(t).all()
     np.testing.assert_allclose(t[:3, :3].T @ t[:3, :3], np.eye(3), atol=1e-9)

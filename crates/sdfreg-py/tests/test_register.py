@@ -44,6 +44,40 @@ def test_float32_fortran_order_and_strided_views_give_the_same_result(pair) -> N
     assert rot < 0.5 and trans < 0.005
 
 
+class PointCloudLike:
+    """Open3D's PointCloud as sdfreg sees it: ``np.asarray(pcd.points)`` is (N, 3)."""
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.points = [list(p) for p in points]
+
+
+def misaligned(a: np.ndarray) -> np.ndarray:
+    """A float64 copy of ``a`` one byte into a buffer (as Dask hands arrays to workers)."""
+    buf = bytearray(a.nbytes + 1)
+    out = np.frombuffer(buf, np.float64, count=a.size, offset=1).reshape(a.shape)
+    out[:] = a
+    assert not out.flags.aligned
+    return out
+
+
+def test_odd_memory_and_point_cloud_objects_give_the_same_result(pair) -> None:
+    """Misaligned, read-only, big-endian, memoryview and Open3D-like inputs are accepted and
+    read exactly like a plain C array."""
+    source, target, _ = pair
+    base = sdfreg.register(source, target, **QUICK)
+    read_only = source.copy()
+    read_only.flags.writeable = False
+    for src in [
+        misaligned(source),
+        read_only,
+        source.astype(">f8"),
+        np.frombuffer(memoryview(source.tobytes()), np.float64).reshape(-1, 3),
+        PointCloudLike(source),
+    ]:
+        other = sdfreg.register(src, PointCloudLike(target), **QUICK)
+        np.testing.assert_array_equal(other.transformation, base.transformation)
+
+
 def test_millimetres_and_far_offsets_give_the_same_pose(pair) -> None:
     source, target, truth = pair
     unit = sdfreg.register(source, target)
@@ -126,15 +160,81 @@ def test_a_tube_reports_its_free_spin() -> None:
     np.testing.assert_allclose(centre[:3], [2, 1, 0], atol=2.0)
 
 
-def test_keyword_defaults_are_the_core_defaults() -> None:
-    params = inspect.signature(sdfreg.register).parameters
-    core = _sdfreg._core_defaults()
-    assert set(core) == set(params) - {"source", "target", "init"}
+GROUPS = {
+    "mlp": sdfreg.MlpSettings,
+    "fit": sdfreg.FitSettings,
+    "multistart": sdfreg.MultistartSettings,
+    "coarse_to_fine": sdfreg.CoarseToFineSettings,
+    "lm": sdfreg.LmSettings,
+    "polish": sdfreg.PolishSettings,
+    "shift_search": sdfreg.ShiftSearchSettings,
+}
+
+
+@pytest.mark.parametrize("group", sorted(GROUPS))
+def test_settings_classes_mirror_the_core_with_its_defaults(group: str) -> None:
+    """Each class's keywords are the core struct's fields, with the core's defaults."""
+    cls = GROUPS[group]
+    core = _sdfreg._core_defaults()[group]
+    params = inspect.signature(cls).parameters
+    assert list(params) == list(core), group
+    made = cls()
     for name, value in core.items():
-        default = params[name].default
-        # f32 settings come back widened (0.002 → 0.0020000000949949026).
-        assert default == (value if value is None else pytest.approx(value, rel=1e-6)), name
         assert params[name].kind is inspect.Parameter.KEYWORD_ONLY
+        assert params[name].default == value, (group, name)
+        assert getattr(made, name) == value, (group, name)
+    assert eval(repr(made), vars(sdfreg)) == made
+    assert cls(**{next(iter(core)): params[next(iter(core))].default}) == made
+
+
+def test_robust_settings_mirror_the_core() -> None:
+    core = _sdfreg._core_defaults()["robust"]
+    r = sdfreg.RobustSettings()
+    assert core["mode"] == {"kind": "auto", "below_fitness": r.below_fitness, "gain": r.gain, "tie": r.rerun_tie}
+    assert (r.kappa_start, r.kappa_end, r.floor) == (core["kappa_start"], core["kappa_end"], core["floor"])
+    assert r.mode == "auto" and r.scale is None
+    fixed = sdfreg.RobustSettings(mode="fixed", scale=0.01)
+    assert fixed.mode == "fixed" and fixed.scale == 0.01
+    assert eval(repr(fixed), vars(sdfreg)) == fixed
+
+
+def test_everyday_keywords_are_keyword_only_and_none_means_the_presets() -> None:
+    params = inspect.signature(sdfreg.register).parameters
+    assert list(params)[:2] == ["source", "target"]
+    for name in list(params)[2:]:
+        assert params[name].kind is inspect.Parameter.KEYWORD_ONLY, name
+    assert {n for n, p in params.items() if p.default is None} >= {"preset", "robust", *GROUPS}
+    core = _sdfreg._core_defaults()
+    assert (params["seed"].default, params["threads"].default) == (core["seed"], core["threads"])
+
+
+def test_settings_objects_and_presets_change_the_run(pair) -> None:
+    source, target, _ = pair
+    base = sdfreg.register(source, target, **QUICK)
+    assert base.stages["robust"]["kind"] == "not_needed"
+    scans = sdfreg.register(source, target, preset="scans", **QUICK)
+    assert scans.robust and scans.stages["robust"]["kind"] == "from_start"
+    off = sdfreg.register(source, target, robust="off", **QUICK)
+    assert off.stages["robust"] == {"kind": "off"}
+    no_polish = sdfreg.register(source, target, polish=sdfreg.PolishSettings(iterations=0), **QUICK)
+    assert no_polish.stages["polish"]["result"] == "off"
+    assert no_polish.stop_reason == no_polish.stages["final_lm"]["stop_reason"]
+    given = sdfreg.register(source, target, init=base.transformation, **QUICK)
+    assert given.stages["initial"]["given"] and given.stages["initial"]["starts"] == 0
+
+
+def test_stages_say_what_each_stage_did(pair) -> None:
+    source, target, truth = pair
+    r = sdfreg.register(source, target, **QUICK)
+    st = r.stages
+    assert list(st) == ["initial", "coarse_to_fine", "final_lm", "robust", "polish", "shift_search"]
+    assert st["initial"]["starts"] == 168 and not st["initial"]["given"]
+    # The source is the target's own sample, moved: the polish snaps it onto those points.
+    assert st["polish"]["result"] == "snapped" and r.stop_reason == st["polish"]["stop_reason"]
+    assert st["final_lm"]["stop_reason"] in ("small_step", "no_decrease", "max_iterations")
+    assert st["polish"]["change"]["rotation_deg"] < 2.0
+    assert st["shift_search"]["taken"] is False and st["shift_search"]["fitness_gain"] == 0.0
+    assert st["robust"]["least_squares_fitness"] == r.fitness
 
 
 def cli() -> Path | None:
@@ -158,3 +258,5 @@ def test_same_numbers_as_the_cli_for_the_same_seed(tmp_path: Path) -> None:
     np.testing.assert_array_equal(np.array(from_cli["transformation"]), result.transformation)
     assert from_cli["iterations"] == result.iterations
     assert from_cli["fitness"] == result.fitness
+    assert from_cli["stop_reason"] == result.stop_reason
+    assert from_cli["stages"] == result.stages

@@ -2,13 +2,22 @@
 
 ``register(source, target)`` moves ``source`` onto ``target`` and returns a
 :class:`Registration` whose ``transformation`` (4×4) maps source coordinates into the target
-frame. Clouds are (N, 3) arrays of float32 or float64 in any units; Open3D clouds pass as
-``np.asarray(pcd.points)``.
+frame. Clouds are (N, 3) arrays of float32 or float64 in any units, or Open3D point clouds.
+Tuning goes in settings objects, one per stage: ``register(s, t, lm=LmSettings(max_tries=10))``;
+``preset="scans"`` suits scans that overlap only in part.
 """
 
 from ._sdfreg import (
+    CoarseToFineSettings,
+    FitSettings,
     FreeMotion,
+    LmSettings,
+    MlpSettings,
+    MultistartSettings,
+    PolishSettings,
     Registration,
+    RobustSettings,
+    ShiftSearchSettings,
     __version__,
     read_point_cloud,
     register,
@@ -16,8 +25,16 @@ from ._sdfreg import (
 )
 
 __all__ = [
+    "CoarseToFineSettings",
+    "FitSettings",
     "FreeMotion",
+    "LmSettings",
+    "MlpSettings",
+    "MultistartSettings",
+    "PolishSettings",
     "Registration",
+    "RobustSettings",
+    "ShiftSearchSettings",
     "__version__",
     "read_point_cloud",
     "register",

@@ -1,15 +1,23 @@
 """Native part of sdfreg (Rust, pyo3). Import from ``sdfreg``, not from here."""
 
 import os
-from typing import Dict, List, Optional, Union, final
+from typing import Any, Dict, List, Optional, Protocol, Union, final
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
 __all__ = [
+    "CoarseToFineSettings",
+    "FitSettings",
     "FreeMotion",
+    "LmSettings",
+    "MlpSettings",
+    "MultistartSettings",
+    "PolishSettings",
     "Registration",
+    "RobustSettings",
+    "ShiftSearchSettings",
     "__version__",
     "_core_defaults",
     "read_point_cloud",
@@ -18,6 +26,242 @@ __all__ = [
 ]
 
 _PathLike = Union[str, "os.PathLike[str]"]
+
+class _HasPoints(Protocol):
+    """A point cloud object such as Open3D's ``PointCloud``: ``np.asarray(obj.points)`` is (N, 3)."""
+
+    @property
+    def points(self) -> npt.ArrayLike: ...
+
+@final
+class MlpSettings:
+    """The SDF network Φ: an MLP 3 → width × depth → 1 with softplus activations."""
+
+    def __new__(
+        cls, *, width: int = 32, depth: int = 3, beta: float = 100.0, init_radius: float = 0.3
+    ) -> MlpSettings: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def depth(self) -> int: ...
+    @property
+    def beta(self) -> float: ...
+    @property
+    def init_radius(self) -> float: ...
+
+@final
+class FitSettings:
+    """The self-supervised fit of Φ to the target (Adam; lengths normalised)."""
+
+    def __new__(
+        cls,
+        *,
+        prefit_steps: int = 500,
+        prefit_lr: float = 0.002,
+        refine_steps: int = 40,
+        refine_lr: float = 0.001,
+        batch_queries: int = 1024,
+        refine_batch_queries: int = 512,
+        batch_source: int = 512,
+        batch_surface: int = 512,
+        query_pool: int = 16384,
+        sigma_neighbour: int = 50,
+        sigma_sample: int = 1024,
+        lambda_surface: float = 0.1,
+        lambda_eikonal: float = 0.001,
+        max_source_queries: int = 16384,
+    ) -> FitSettings: ...
+    @property
+    def prefit_steps(self) -> int: ...
+    @property
+    def prefit_lr(self) -> float: ...
+    @property
+    def refine_steps(self) -> int: ...
+    @property
+    def refine_lr(self) -> float: ...
+    @property
+    def batch_queries(self) -> int: ...
+    @property
+    def refine_batch_queries(self) -> int: ...
+    @property
+    def batch_source(self) -> int: ...
+    @property
+    def batch_surface(self) -> int: ...
+    @property
+    def query_pool(self) -> int: ...
+    @property
+    def sigma_neighbour(self) -> int: ...
+    @property
+    def sigma_sample(self) -> int: ...
+    @property
+    def lambda_surface(self) -> float: ...
+    @property
+    def lambda_eikonal(self) -> float: ...
+    @property
+    def max_source_queries(self) -> int: ...
+
+@final
+class MultistartSettings:
+    """The multi-start: initial hypotheses when no ``init`` is given (lengths normalised)."""
+
+    def __new__(
+        cls,
+        *,
+        enabled: bool = True,
+        offset: float = 0.1,
+        points: int = 128,
+        lm_steps: int = 5,
+        keep: int = 4,
+        refine_steps: int = 15,
+        truncation: float = 0.05,
+        tie: float = 0.25,
+        distinct_rotation_deg: float = 5.0,
+        distinct_translation: float = 0.02,
+        hypotheses: int = 3,
+    ) -> MultistartSettings: ...
+    @property
+    def enabled(self) -> bool: ...
+    @property
+    def offset(self) -> float: ...
+    @property
+    def points(self) -> int: ...
+    @property
+    def lm_steps(self) -> int: ...
+    @property
+    def keep(self) -> int: ...
+    @property
+    def refine_steps(self) -> int: ...
+    @property
+    def truncation(self) -> float: ...
+    @property
+    def tie(self) -> float: ...
+    @property
+    def distinct_rotation_deg(self) -> float: ...
+    @property
+    def distinct_translation(self) -> float: ...
+    @property
+    def hypotheses(self) -> int: ...
+
+@final
+class CoarseToFineSettings:
+    """The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ."""
+
+    def __new__(
+        cls, *, alternations: int = 10, lm_steps_per_alternation: int = 2, final_lm_steps: int = 10
+    ) -> CoarseToFineSettings: ...
+    @property
+    def alternations(self) -> int: ...
+    @property
+    def lm_steps_per_alternation(self) -> int: ...
+    @property
+    def final_lm_steps(self) -> int: ...
+
+@final
+class LmSettings:
+    """The Levenberg–Marquardt solver on SE(3)."""
+
+    def __new__(
+        cls,
+        *,
+        initial_lambda: float = 0.01,
+        lambda_decrease: float = 3.0,
+        lambda_increase: float = 4.0,
+        max_tries: int = 6,
+        rotation_tolerance: float = 1e-5,
+        translation_tolerance: float = 1e-5,
+    ) -> LmSettings: ...
+    @property
+    def initial_lambda(self) -> float: ...
+    @property
+    def lambda_decrease(self) -> float: ...
+    @property
+    def lambda_increase(self) -> float: ...
+    @property
+    def max_tries(self) -> int: ...
+    @property
+    def rotation_tolerance(self) -> float: ...
+    @property
+    def translation_tolerance(self) -> float: ...
+
+@final
+class RobustSettings:
+    """The robust (Geman–McClure) kernel and when it is used."""
+
+    def __new__(
+        cls,
+        *,
+        mode: str = "auto",
+        below_fitness: float = 0.35,
+        gain: float = 1.3,
+        rerun_tie: float = 0.05,
+        scale: Optional[float] = None,
+        kappa_start: float = 3.0,
+        kappa_end: float = 1.0,
+        floor: float = 0.002,
+    ) -> RobustSettings: ...
+    @property
+    def mode(self) -> str:
+        """``"auto"``, ``"on"``, ``"off"`` or ``"fixed"``."""
+    @property
+    def below_fitness(self) -> float: ...
+    @property
+    def gain(self) -> float: ...
+    @property
+    def rerun_tie(self) -> float: ...
+    @property
+    def scale(self) -> Optional[float]: ...
+    @property
+    def kappa_start(self) -> float: ...
+    @property
+    def kappa_end(self) -> float: ...
+    @property
+    def floor(self) -> float: ...
+
+@final
+class PolishSettings:
+    """The final point-to-plane polish against the target points (lengths normalised)."""
+
+    def __new__(
+        cls,
+        *,
+        iterations: int = 50,
+        neighbours: int = 5,
+        max_distance: float = 0.05,
+        max_shift: float = 0.05,
+        near_spacings: float = 3.0,
+        prior_weight: float = 1e-4,
+        tolerance: float = 1e-7,
+    ) -> PolishSettings: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def neighbours(self) -> int: ...
+    @property
+    def max_distance(self) -> float: ...
+    @property
+    def max_shift(self) -> float: ...
+    @property
+    def near_spacings(self) -> float: ...
+    @property
+    def prior_weight(self) -> float: ...
+    @property
+    def tolerance(self) -> float: ...
+
+@final
+class ShiftSearchSettings:
+    """The search for translations that lay more source points onto the target (normalised)."""
+
+    def __new__(
+        cls, *, radius: float = 0.3, voxel: float = 0.02, candidates: int = 4, min_gain: float = 0.02
+    ) -> ShiftSearchSettings: ...
+    @property
+    def radius(self) -> float: ...
+    @property
+    def voxel(self) -> float: ...
+    @property
+    def candidates(self) -> int: ...
+    @property
+    def min_gain(self) -> float: ...
 
 @final
 class FreeMotion:
@@ -48,17 +292,18 @@ class Registration:
         ``p_target = R @ p_source + t``, in the clouds' units."""
     @property
     def converged(self) -> bool:
-        """Whether the final Levenberg–Marquardt steps converged (see ``stop_reason``)."""
+        """Whether the stage that set the final pose converged (the polish's last pass when it
+        was applied, else the final Levenberg–Marquardt steps); see ``stop_reason``."""
     @property
     def stop_reason(self) -> str:
-        """``"small_step"``, ``"no_decrease"`` or ``"max_iterations"``."""
+        """Why that stage stopped: ``"small_step"``, ``"no_decrease"`` or ``"max_iterations"``."""
     @property
     def fitness(self) -> float:
         """Fraction of source points within ``inlier_distance`` of a target point."""
     @property
     def robust(self) -> bool:
-        """Whether the robust kernel produced this result (``robust=True``, or least squares fitted
-        below ``robust_below_fitness`` and the robust run fitted better)."""
+        """Whether the robust kernel produced this result (``robust="on"``, or least squares
+        fitted poorly and the robust re-run fitted better; ``stages["robust"]`` says which)."""
     @property
     def inlier_rmse(self) -> float:
         """RMSE of the inliers' nearest-neighbour distances, in the clouds' units."""
@@ -87,71 +332,39 @@ class Registration:
         bottle about its axis. The pose along them is arbitrary. Empty when the pose is fully
         determined."""
     @property
+    def stages(self) -> Dict[str, Any]:
+        """What each stage did: ``initial`` (``given``, ``starts``, ``hypotheses``,
+        ``rotation_deg``), ``coarse_to_fine`` (``survivors``, ``winner``), ``final_lm``
+        (``stop_reason``), ``robust`` (``kind``: ``"off"``, ``"from_start"``, ``"not_needed"``,
+        ``"rerun_kept"`` or ``"rerun_rejected"``, with the fitnesses), ``polish`` (``result``:
+        ``"off"``, ``"applied"``, ``"snapped"`` or ``"undone"``; ``iterations``,
+        ``stop_reason``) and ``shift_search`` (``peaks``, ``taken``, ``fitness_gain``). Each
+        stage that can move the pose has a ``change``: ``rotation_deg`` and ``translation``
+        (RMS displacement of the source points, the clouds' units)."""
+    @property
     def time_s(self) -> float:
         """Wall time of the registration, seconds."""
 
 def register(
-    source: npt.ArrayLike,
-    target: npt.ArrayLike,
+    source: Union[npt.ArrayLike, _HasPoints],
+    target: Union[npt.ArrayLike, _HasPoints],
     *,
     init: Optional[npt.ArrayLike] = None,
+    preset: Optional[str] = None,
+    robust: Union[str, RobustSettings, None] = None,
     seed: int = 0,
     threads: int = 0,
-    alternations: int = 10,
-    lm_steps_per_alternation: int = 2,
-    final_lm_steps: int = 10,
-    multistart: bool = True,
-    multistart_lm_steps: int = 5,
-    multistart_offset: float = 0.1,
-    multistart_points: int = 128,
-    multistart_keep: int = 4,
-    multistart_refine_steps: int = 15,
-    multistart_truncation: float = 0.05,
-    multistart_tie: float = 0.25,
-    hypotheses: int = 3,
-    free_motion_ratio: float = 0.002,
-    max_source_points: int = 4096,
-    max_target_points: int = 100000,
-    robust_scale: Optional[float] = None,
-    robust: bool = False,
-    robust_below_fitness: float = 0.35,
-    robust_kappa_start: float = 3.0,
-    robust_kappa_end: float = 1.0,
-    robust_floor: float = 0.002,
-    inlier_distance: float = 0.02,
-    width: int = 32,
-    depth: int = 3,
-    beta: float = 100.0,
-    init_radius: float = 0.3,
-    prefit_steps: int = 500,
-    prefit_lr: float = 0.002,
-    refine_steps: int = 40,
-    refine_lr: float = 0.001,
-    batch_queries: int = 1024,
-    refine_batch_queries: int = 512,
-    batch_source: int = 512,
-    batch_surface: int = 512,
-    query_pool: int = 16384,
-    sigma_neighbour: int = 50,
-    sigma_sample: int = 1024,
-    lambda_surface: float = 0.1,
-    lambda_eikonal: float = 0.001,
-    max_source_queries: int = 16384,
-    initial_lambda: float = 0.01,
-    lambda_decrease: float = 3.0,
-    lambda_increase: float = 4.0,
-    max_tries: int = 6,
-    rotation_tolerance: float = 1e-5,
-    translation_tolerance: float = 1e-5,
-    polish_iterations: int = 50,
-    polish_neighbours: int = 5,
-    polish_max_distance: float = 0.05,
-    polish_max_shift: float = 0.05,
-    polish_near_spacings: float = 3.0,
-    shift_search_radius: float = 0.3,
-    shift_search_voxel: float = 0.02,
-    shift_search_candidates: int = 4,
-    shift_search_min_gain: float = 0.02,
+    max_source_points: Optional[int] = None,
+    max_target_points: Optional[int] = None,
+    inlier_distance: Optional[float] = None,
+    free_motion_ratio: Optional[float] = None,
+    mlp: Optional[MlpSettings] = None,
+    fit: Optional[FitSettings] = None,
+    multistart: Optional[MultistartSettings] = None,
+    coarse_to_fine: Optional[CoarseToFineSettings] = None,
+    lm: Optional[LmSettings] = None,
+    polish: Optional[PolishSettings] = None,
+    shift_search: Optional[ShiftSearchSettings] = None,
 ) -> Registration:
     """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
     cloud onto the target's surface, without point correspondences.
@@ -163,34 +376,34 @@ def register(
     rotation works.
 
     Args:
-        source: (N, 3) points to move; float32 or float64 array in any memory layout, or
-            anything ``numpy.asarray`` turns into one (e.g. ``np.asarray(pcd.points)``).
+        source: (N, 3) points to move: a float32 or float64 array in any memory layout, an
+            Open3D ``PointCloud`` (anything with a ``.points`` that numpy reads), or anything
+            ``numpy.asarray`` turns into one.
         target: (M, 3) points that stay fixed, same units as ``source``.
         init: Optional 4×4 rigid initial guess mapping source into target; replaces the
             multi-start.
+        preset: ``"default"``, or ``"scans"`` for scans known to overlap only in part (the
+            robust kernel from the start, multi-start tie 0.05). The arguments below override
+            it; None keeps the preset's value.
+        robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
+            ``"on"``, ``"off"``, or a :class:`RobustSettings`.
         seed: Seed of every random choice; equal seeds give identical results.
         threads: Worker threads; 0 = one per core. The result does not depend on it.
+        max_source_points: Source points used at most (larger clouds are subsampled, seeded).
+        max_target_points: Target points used at most.
+        inlier_distance: A source point within this distance of a target point is an inlier
+            (``fitness``, ``inlier_rmse``); a fraction of the target's largest side.
+        free_motion_ratio: Constraint eigenvalues below this (relative) are reported as
+            ``free_motions``.
+        mlp: The SDF network (:class:`MlpSettings`).
+        fit: Fitting Φ (:class:`FitSettings`).
+        multistart: The initial hypotheses (:class:`MultistartSettings`).
+        coarse_to_fine: The alternation schedule (:class:`CoarseToFineSettings`).
+        lm: The Levenberg–Marquardt solver (:class:`LmSettings`).
+        polish: The final point-to-plane steps (:class:`PolishSettings`).
+        shift_search: The translation search (:class:`ShiftSearchSettings`).
 
-    The other keyword arguments are the engine's settings, with its defaults; lengths are
-    fractions of the target's largest bounding-box side. ``alternations``,
-    ``lm_steps_per_alternation``, ``final_lm_steps``: the coarse-to-fine schedule.
-    ``multistart*``, ``hypotheses``: the initialisation. ``max_source_points``,
-    ``max_target_points``: larger clouds are subsampled (seeded). ``free_motion_ratio``:
-    constraint eigenvalues below it (relative) are reported as ``free_motions``. ``robust``:
-    Geman–McClure kernel with the scale ``κ·median|Φ|`` (κ from ``robust_kappa_start`` to
-    ``robust_kappa_end``, at least ``robust_floor``); ``robust_scale`` fixes the scale; without
-    either, a result with ``fitness`` below ``robust_below_fitness`` is redone with the robust
-    kernel (and ``multistart_tie`` 0.05), kept if it fits 1.3 times as many points. ``inlier_distance``: for ``fitness``
-    and ``inlier_rmse``. ``width``, ``depth``, ``beta``, ``init_radius``: the SDF network.
-    ``prefit_*``, ``refine_*``, ``batch_*``, ``query_pool``, ``sigma_*``, ``lambda_*``,
-    ``max_source_queries``: the SDF fit. ``initial_lambda``, ``lambda_decrease``,
-    ``lambda_increase``, ``max_tries``, ``*_tolerance``: the Levenberg–Marquardt solver.
-    ``polish_*``: the final point-to-plane steps on the target points
-    (``polish_iterations=0`` turns them off).
-    ``shift_search_*``: translations (within ``shift_search_radius``, on a grid of
-    ``shift_search_voxel``) that lay more source points onto the target than the SDF's pose; the
-    best ``shift_search_candidates`` are polished, and one is kept if it raises the fitness by
-    ``shift_search_min_gain`` (``shift_search_radius=0`` turns it off).
+    A settings object replaces the preset's whole group.
 
     Returns:
         The :class:`Registration`.
@@ -230,5 +443,5 @@ def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
         OSError: the file cannot be written or the extension is unknown.
     """
 
-def _core_defaults() -> Dict[str, Union[int, float, bool, None]]:
-    """The engine's defaults of the settings :func:`register` takes (for tests)."""
+def _core_defaults() -> Dict[str, Any]:
+    """The core's defaults of every settings group, as nested dicts (for tests)."""

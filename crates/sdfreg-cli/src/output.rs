@@ -1,0 +1,76 @@
+//! How the CLI writes results: 4×4 matrices as text, and registrations as JSON with the same
+//! snake_case names as the Python binding (`stop_reason: "small_step"`, `stages`, …).
+
+use nalgebra::{Matrix4, SMatrix};
+use sdfreg_core::{Degeneracy, Registration};
+
+/// The 4×4 as four lines of four numbers, each written by `number`.
+pub fn matrix_lines(m: &Matrix4<f64>, number: impl Fn(f64) -> String) -> String {
+    matrix_rows(m)
+        .iter()
+        .map(|row| row.iter().map(|&v| number(v)).collect::<Vec<_>>().join(" ") + "\n")
+        .collect()
+}
+
+/// The 4×4 as four lines of four numbers with 9 decimals (what `register` prints).
+pub fn matrix_text(m: &Matrix4<f64>) -> String {
+    matrix_lines(m, |v| format!("{v:.9}"))
+}
+
+/// A matrix as a list of rows (row-major nested lists in JSON).
+pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
+    (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
+}
+
+/// The free motions as JSON objects: `kind`, `axis`, `point`, `relative_eigenvalue`.
+pub fn free_motions_json(d: &Degeneracy) -> serde_json::Value {
+    d.free
+        .iter()
+        .map(|f| {
+            serde_json::json!({
+                "kind": f.kind.name(),
+                "axis": [f.axis.x, f.axis.y, f.axis.z],
+                "point": [f.point.x, f.point.y, f.point.z],
+                "relative_eigenvalue": f.relative_eigenvalue,
+            })
+        })
+        .collect()
+}
+
+/// A registration as the JSON object `register --output FILE.json` writes.
+pub fn registration_json(r: &Registration) -> serde_json::Value {
+    serde_json::json!({
+        "transformation": matrix_rows(&r.matrix()),
+        "converged": r.converged,
+        "stop_reason": r.stop_reason.name(),
+        "fitness": r.fitness,
+        "robust": r.robust,
+        "inlier_rmse": r.inlier_rmse,
+        "inlier_distance": r.inlier_distance,
+        "iterations": r.iterations,
+        "cost": r.cost,
+        "information": matrix_rows(&r.information),
+        "constraint_eigenvalues": r.degeneracy.relative_eigenvalues,
+        "free_motions": free_motions_json(&r.degeneracy),
+        "stages": r.stages,
+        "time_ms": r.time.as_secs_f64() * 1e3,
+    })
+}
+
+/// The one-line summary `register` prints on stderr.
+pub fn summary_line(r: &Registration) -> String {
+    format!(
+        "{} ({}) after {} LM iterations, fitness {:.3}{}, inlier RMSE {:.3e}, {:.0} ms",
+        if r.converged {
+            "converged"
+        } else {
+            "not converged"
+        },
+        r.stop_reason.name(),
+        r.iterations,
+        r.fitness,
+        if r.robust { " (robust kernel)" } else { "" },
+        r.inlier_rmse,
+        r.time.as_secs_f64() * 1e3
+    )
+}

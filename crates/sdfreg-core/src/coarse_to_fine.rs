@@ -1,0 +1,136 @@
+//! Coarse-to-fine (paper eq. 18-1) and the final LM on the frozen Φ.
+//!
+//! [`CoarseToFineSettings::alternations`] times: every hypothesis's moved source joins Φ's query
+//! set (queries carry their true nearest target point, so extra ones only teach Φ more of the far
+//! field; with a robust kernel, points at `|Φ| ≥ c`, outside the target's coverage, are left
+//! out), Φ is refined for [`crate::FitSettings::refine_steps`] Adam steps, and each hypothesis
+//! takes [`CoarseToFineSettings::lm_steps_per_alternation`] LM steps. Halfway, hypotheses that
+//! fit clearly worse than the best are dropped; at the end the best-fitting one is kept (near-ties
+//! to the least rotation). Then LM on the frozen Φ until converged ([`final_lm`]).
+//!
+//! Entry points: [`alternate`], [`final_lm`].
+
+use nalgebra::{Isometry3, Point3};
+
+use crate::cloud::transformed_f32;
+use crate::lm::{Kernel, Lm, StopReason};
+use crate::mlp::Mlp;
+use crate::multistart::{least_motion, nn_score};
+use crate::robust::KernelPolicy;
+use crate::sdf_fit::SdfFitter;
+use crate::settings::{CoarseToFineSettings, RegisterSettings};
+use crate::Stage;
+
+/// What the alternations did.
+pub(crate) struct Alternated {
+    /// The winning hypothesis's solver.
+    pub lm: Lm,
+    /// Hypotheses still alive at the end (before the pick).
+    pub survivors: usize,
+    /// Index of the winner among the hypotheses as they came in (0 = the multi-start's pick).
+    pub winner: usize,
+}
+
+/// The alternations of Φ refinement and LM steps over every hypothesis (unit frame), from
+/// `hypotheses`; returns the best-fitting one's solver. `tie` decides the halfway drop and the
+/// final pick ([`crate::MultistartSettings::tie`]); `tau2` is the score's truncation².
+pub(crate) fn alternate(
+    fit: &mut SdfFitter,
+    source: &[Point3<f64>],
+    hypotheses: &[Isometry3<f64>],
+    s: &RegisterSettings,
+    policy: KernelPolicy,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Alternated {
+    let c = &s.coarse_to_fine;
+    let (tie, tau2) = (s.multistart.tie, s.multistart.truncation.powi(2));
+    let mut lms: Vec<(usize, Lm)> = hypotheses
+        .iter()
+        .map(|p| Lm::new(*p, &s.lm))
+        .enumerate()
+        .collect();
+    for k in 0..c.alternations {
+        let kappa = policy.kappa(k, c.alternations);
+        // One evaluation of Φ at the moved source serves the kernel's scale and the gate.
+        let mut kernels = Vec::with_capacity(lms.len());
+        for (_, lm) in &lms {
+            let moved = transformed_f32(source, &lm.pose);
+            if !policy.is_robust() {
+                fit.add_source_queries(&moved);
+                kernels.push(Kernel::L2);
+                continue;
+            }
+            let (phi, _) = fit.mlp().eval(&moved, false);
+            let kernel = policy.kernel(&phi, kappa);
+            let scale = kernel.scale().unwrap_or(f64::INFINITY);
+            let near: Vec<[f32; 3]> = moved
+                .iter()
+                .zip(&phi)
+                .filter(|(_, v)| (v.abs() as f64) < scale)
+                .map(|(x, _)| *x)
+                .collect();
+            fit.add_source_queries(&near);
+            kernels.push(kernel);
+        }
+        fit.train(s.fit.refine_steps, s.fit.refine_lr);
+        for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
+            lm.run(fit.mlp(), source, kernel, c.lm_steps_per_alternation);
+        }
+        progress(Stage::Alternation(k + 1, c.alternations));
+        // Halfway, hypotheses that fit clearly worse than the best are dropped.
+        if k + 1 == c.alternations / 2 && lms.len() > 1 {
+            let scores: Vec<f64> = lms
+                .iter()
+                .map(|(_, lm)| nn_score(fit.tree(), source, &lm.pose, tau2))
+                .collect();
+            let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
+            lms = lms
+                .into_iter()
+                .zip(scores)
+                .filter(|(_, score)| *score <= best * (1.0 + tie))
+                .map(|(lm, _)| lm)
+                .collect();
+        }
+    }
+    let scored: Vec<(f64, Isometry3<f64>)> = lms
+        .iter()
+        .map(|(_, lm)| (nn_score(fit.tree(), source, &lm.pose, tau2), lm.pose))
+        .collect();
+    let survivors = lms.len();
+    let (winner, lm) = lms.swap_remove(least_motion(&scored, tie));
+    Alternated {
+        lm,
+        survivors,
+        winner,
+    }
+}
+
+/// LM on the frozen Φ from `lm`'s pose until converged, at most
+/// [`CoarseToFineSettings::final_lm_steps`] steps, with the policy's final κ.
+pub(crate) fn final_lm(
+    fit: &SdfFitter,
+    source: &[Point3<f64>],
+    lm: &mut Lm,
+    c: &CoarseToFineSettings,
+    policy: KernelPolicy,
+) -> StopReason {
+    let kernel = kernel_at(fit.mlp(), source, &lm.pose, policy, policy.kappa_end());
+    lm.run(fit.mlp(), source, kernel, c.final_lm_steps)
+}
+
+/// The policy's kernel for `source` (unit frame) moved by `pose`, with `kappa`: Φ is evaluated
+/// only when the scale is adaptive.
+pub(crate) fn kernel_at(
+    mlp: &Mlp,
+    source: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    policy: KernelPolicy,
+    kappa: f64,
+) -> Kernel {
+    if matches!(policy, KernelPolicy::Adaptive { .. }) {
+        let (phi, _) = mlp.eval(&transformed_f32(source, pose), false);
+        policy.kernel(&phi, kappa)
+    } else {
+        policy.kernel(&[], kappa)
+    }
+}

@@ -1,0 +1,457 @@
+//! The settings groups as Python classes (`sdfreg.LmSettings(...)`, …), one per struct of the
+//! core's `RegisterSettings`: keyword-only constructors with the core's defaults, read-only
+//! attributes, `==` and a `repr` that reconstructs the object. A constructor checks its group
+//! (`ValueError` naming the field, as the core says it).
+
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use pyo3::IntoPyObjectExt;
+use sdfreg_core::{RegisterSettings, RobustMode};
+
+use crate::error;
+
+/// A Python keyword argument converted to the core's type of that setting.
+pub trait IntoSetting<T> {
+    fn into_setting(self, name: &str) -> PyResult<T>;
+}
+
+impl IntoSetting<usize> for i64 {
+    fn into_setting(self, name: &str) -> PyResult<usize> {
+        usize::try_from(self)
+            .map_err(|_| error::argument(name, format!("must be a count ≥ 0, got {self}")))
+    }
+}
+
+impl IntoSetting<u64> for i64 {
+    fn into_setting(self, name: &str) -> PyResult<u64> {
+        u64::try_from(self)
+            .map_err(|_| error::argument(name, format!("must be an integer ≥ 0, got {self}")))
+    }
+}
+
+impl IntoSetting<f32> for f64 {
+    fn into_setting(self, _: &str) -> PyResult<f32> {
+        Ok(self as f32)
+    }
+}
+
+impl<T> IntoSetting<T> for T {
+    fn into_setting(self, _: &str) -> PyResult<T> {
+        Ok(self)
+    }
+}
+
+/// A core setting's value as a Python object: f32 values by their shortest decimal (0.002, not
+/// 0.0020000000949949026), everything else as it is.
+trait Expose {
+    fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>>;
+}
+
+macro_rules! expose_as_is {
+    ($($t:ty),*) => {$(
+        impl Expose for $t {
+            fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+                self.into_bound_py_any(py)
+            }
+        }
+    )*};
+}
+expose_as_is!(usize, u64, bool, f64);
+
+impl Expose for f32 {
+    fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let shortest: f64 = self.to_string().parse().unwrap_or(*self as f64);
+        shortest.into_bound_py_any(py)
+    }
+}
+
+/// `Name(field=value, …)` with each value's Python repr.
+fn repr(name: &str, fields: &[(&str, Bound<'_, PyAny>)]) -> PyResult<String> {
+    let parts: Vec<String> = fields
+        .iter()
+        .map(|(k, v)| Ok(format!("{k}={}", v.repr()?)))
+        .collect::<PyResult<_>>()?;
+    Ok(format!("{name}({})", parts.join(", ")))
+}
+
+/// Defines a Python class wrapping a core settings struct: `PyName => CoreType as "Name",
+/// "group" { field: python type = default, … }`. The defaults are the core's (the Python tests
+/// compare them with `_core_defaults()`).
+macro_rules! settings_class {
+    (
+        $(#[doc = $doc:literal])*
+        $py:ident => $core:ident as $name:literal, $group:literal {
+            $($field:ident : $ty:ty = $default:tt),* $(,)?
+        }
+    ) => {
+        $(#[doc = $doc])*
+        #[pyclass(module = "sdfreg", name = $name, frozen, eq)]
+        #[derive(Clone, PartialEq)]
+        pub struct $py(pub sdfreg_core::$core);
+
+        #[pymethods]
+        impl $py {
+            #[new]
+            #[pyo3(signature = (*, $($field = $default),*))]
+            #[allow(clippy::too_many_arguments)]
+            fn new($($field: $ty),*) -> PyResult<Self> {
+                let mut s = sdfreg_core::$core::default();
+                $(s.$field = $field.into_setting(concat!($group, ".", stringify!($field)))?;)*
+                s.validate().map_err(error::registration)?;
+                Ok(Self(s))
+            }
+
+            $(
+                #[getter]
+                fn $field<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+                    self.0.$field.expose(py)
+                }
+            )*
+
+            fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+                repr($name, &[$((stringify!($field), self.0.$field.expose(py)?)),*])
+            }
+        }
+    };
+}
+
+settings_class! {
+    /// The SDF network Φ: an MLP 3 → width × depth → 1 with softplus activations.
+    ///
+    /// Args:
+    ///     width: Neurons per hidden layer.
+    ///     depth: Hidden layers.
+    ///     beta: Softplus sharpness (1 / normalised length).
+    ///     init_radius: Radius of the sphere the geometric initialisation starts from
+    ///         (normalised: the target's largest bounding-box side is 1).
+    PyMlpSettings => MlpSettings as "MlpSettings", "mlp" {
+        width: i64 = 32,
+        depth: i64 = 3,
+        beta: f64 = 100.0,
+        init_radius: f64 = 0.3,
+    }
+}
+
+settings_class! {
+    /// The self-supervised fit of Φ to the target (Adam; lengths normalised).
+    ///
+    /// Args:
+    ///     prefit_steps: Adam steps before registration starts.
+    ///     prefit_lr: Learning rate of the pre-fit.
+    ///     refine_steps: Adam steps per coarse-to-fine alternation.
+    ///     refine_lr: Learning rate of the alternations.
+    ///     batch_queries: Perturbation queries per step.
+    ///     refine_batch_queries: Perturbation queries per step once moved-source queries exist.
+    ///     batch_source: Moved-source queries per step (once any exist).
+    ///     batch_surface: Target points per step for the surface term.
+    ///     query_pool: Size of the fixed pool of perturbation queries.
+    ///     sigma_neighbour: A query's spread is the distance to this neighbour.
+    ///     sigma_sample: Target points the spreads and the pool are drawn from.
+    ///     lambda_surface: Weight of ``|Φ|`` on target points.
+    ///     lambda_eikonal: Weight of the Eikonal term ``(‖∇Φ‖ − 1)²``.
+    ///     max_source_queries: Moved-source queries kept at most (oldest dropped).
+    PyFitSettings => FitSettings as "FitSettings", "fit" {
+        prefit_steps: i64 = 500,
+        prefit_lr: f64 = 0.002,
+        refine_steps: i64 = 40,
+        refine_lr: f64 = 0.001,
+        batch_queries: i64 = 1024,
+        refine_batch_queries: i64 = 512,
+        batch_source: i64 = 512,
+        batch_surface: i64 = 512,
+        query_pool: i64 = 16384,
+        sigma_neighbour: i64 = 50,
+        sigma_sample: i64 = 1024,
+        lambda_surface: f64 = 0.1,
+        lambda_eikonal: f64 = 0.001,
+        max_source_queries: i64 = 16384,
+    }
+}
+
+settings_class! {
+    /// The multi-start: initial hypotheses when no ``init`` is given (lengths normalised).
+    ///
+    /// Args:
+    ///     enabled: Try the 24 rotations of the cube group (False: centroid alignment only).
+    ///     offset: Also start with the translation shifted by ± this along each axis.
+    ///     points: Source points each start uses at most.
+    ///     lm_steps: LM steps per start.
+    ///     keep: Starts kept for a second round.
+    ///     refine_steps: LM steps per kept start.
+    ///     truncation: Starts are scored by nearest-target distances truncated here.
+    ///     tie: Scores within this fraction of the best are ties, won by the least rotation.
+    ///     distinct_rotation_deg: Starts closer than this (degrees)…
+    ///     distinct_translation: …and this count as one.
+    ///     hypotheses: Hypotheses carried into the coarse-to-fine loop.
+    PyMultistartSettings => MultistartSettings as "MultistartSettings", "multistart" {
+        enabled: bool = true,
+        offset: f64 = 0.1,
+        points: i64 = 128,
+        lm_steps: i64 = 5,
+        keep: i64 = 4,
+        refine_steps: i64 = 15,
+        truncation: f64 = 0.05,
+        tie: f64 = 0.25,
+        distinct_rotation_deg: f64 = 5.0,
+        distinct_translation: f64 = 0.02,
+        hypotheses: i64 = 3,
+    }
+}
+
+settings_class! {
+    /// The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ.
+    ///
+    /// Args:
+    ///     alternations: Alternations of Φ refinement and LM steps.
+    ///     lm_steps_per_alternation: LM steps per alternation.
+    ///     final_lm_steps: LM steps at most on the final Φ.
+    PyCoarseToFineSettings => CoarseToFineSettings as "CoarseToFineSettings", "coarse_to_fine" {
+        alternations: i64 = 10,
+        lm_steps_per_alternation: i64 = 2,
+        final_lm_steps: i64 = 10,
+    }
+}
+
+settings_class! {
+    /// The Levenberg–Marquardt solver on SE(3).
+    ///
+    /// Args:
+    ///     initial_lambda: Initial damping (relative to diag H).
+    ///     lambda_decrease: Damping divided by this after an accepted step.
+    ///     lambda_increase: Damping multiplied by this after a rejected step.
+    ///     max_tries: Rejected tries per iteration before giving up.
+    ///     rotation_tolerance: Converged when the rotation step (radians)…
+    ///     translation_tolerance: …and the translation step (normalised) are below these.
+    PyLmSettings => LmSettings as "LmSettings", "lm" {
+        initial_lambda: f64 = 0.01,
+        lambda_decrease: f64 = 3.0,
+        lambda_increase: f64 = 4.0,
+        max_tries: i64 = 6,
+        rotation_tolerance: f64 = 1e-5,
+        translation_tolerance: f64 = 1e-5,
+    }
+}
+
+settings_class! {
+    /// The final point-to-plane polish against the target points (lengths normalised).
+    ///
+    /// Args:
+    ///     iterations: Gauss–Newton iterations per pass at most; 0 turns the polish off.
+    ///     neighbours: Target points each local plane is fitted to.
+    ///     max_distance: Source points farther than this from the target are left out.
+    ///     max_shift: The polish is undone if it moves the source more than this (RMS).
+    ///     near_spacings: A second pass uses only points within this many target spacings.
+    ///     prior_weight: Weight of the prior towards the SDF's pose (relative to trace H).
+    ///     tolerance: A pass has converged when its step is below this.
+    PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
+        iterations: i64 = 50,
+        neighbours: i64 = 5,
+        max_distance: f64 = 0.05,
+        max_shift: f64 = 0.05,
+        near_spacings: f64 = 3.0,
+        prior_weight: f64 = 1e-4,
+        tolerance: f64 = 1e-7,
+    }
+}
+
+settings_class! {
+    /// The search for translations that lay more source points onto the target (normalised).
+    ///
+    /// Args:
+    ///     radius: Offsets searched up to this far per axis; 0 turns the search off.
+    ///     voxel: Cube side of the occupancy grids.
+    ///     candidates: Peaks polished and scored at most.
+    ///     min_gain: A peak replaces the pose only if it raises the fitness by this.
+    PyShiftSearchSettings => ShiftSearchSettings as "ShiftSearchSettings", "shift_search" {
+        radius: f64 = 0.3,
+        voxel: f64 = 0.02,
+        candidates: i64 = 4,
+        min_gain: f64 = 0.02,
+    }
+}
+
+/// The robust (Geman–McClure) kernel and when it is used.
+///
+/// Args:
+///     mode: ``"auto"`` (least squares; a result fitting fewer than ``below_fitness`` of the
+///         source points is redone with the kernel and a multi-start tie of ``rerun_tie``,
+///         kept if it fits ``gain`` times as many), ``"on"`` (the kernel from the start: scans
+///         that overlap in part), ``"off"`` (least squares) or ``"fixed"`` (the kernel with
+///         the fixed ``scale``).
+///     below_fitness: See ``mode="auto"``.
+///     gain: See ``mode="auto"``.
+///     rerun_tie: See ``mode="auto"``.
+///     scale: The kernel's scale for ``mode="fixed"`` (normalised).
+///     kappa_start: The adaptive scale is κ·median|Φ|, κ from this…
+///     kappa_end: …to this over the alternations.
+///     floor: Smallest adaptive scale (normalised).
+#[pyclass(module = "sdfreg", name = "RobustSettings", frozen, eq)]
+#[derive(Clone, PartialEq)]
+pub struct PyRobustSettings(pub sdfreg_core::RobustSettings);
+
+impl PyRobustSettings {
+    /// The re-run's fitness threshold, gain and tie (``mode="auto"``; the defaults otherwise).
+    fn auto_rule(&self) -> (f64, f64, f64) {
+        let auto = |m: RobustMode| match m {
+            RobustMode::Auto {
+                below_fitness,
+                gain,
+                tie,
+            } => Some((below_fitness, gain, tie)),
+            _ => None,
+        };
+        auto(self.0.mode)
+            .or(auto(RobustMode::AUTO))
+            .expect("RobustMode::AUTO is Auto")
+    }
+}
+
+#[pymethods]
+impl PyRobustSettings {
+    #[new]
+    #[pyo3(signature = (*, mode = "auto", below_fitness = 0.35, gain = 1.3, rerun_tie = 0.05, scale = None, kappa_start = 3.0, kappa_end = 1.0, floor = 0.002))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        mode: &str,
+        below_fitness: f64,
+        gain: f64,
+        rerun_tie: f64,
+        scale: Option<f64>,
+        kappa_start: f64,
+        kappa_end: f64,
+        floor: f64,
+    ) -> PyResult<Self> {
+        let mode = match (mode, scale) {
+            ("fixed", Some(scale)) => RobustMode::Fixed { scale },
+            ("fixed", None) => {
+                return Err(error::argument(
+                    "robust.scale",
+                    "mode=\"fixed\" needs a scale",
+                ))
+            }
+            (_, Some(_)) => {
+                return Err(error::argument("robust.scale", "only with mode=\"fixed\""));
+            }
+            ("auto", None) => RobustMode::Auto {
+                below_fitness,
+                gain,
+                tie: rerun_tie,
+            },
+            ("on", None) => RobustMode::On,
+            ("off", None) => RobustMode::Off,
+            (other, None) => {
+                return Err(error::argument(
+                    "robust.mode",
+                    format!("expected \"auto\", \"on\", \"off\" or \"fixed\", got {other:?}"),
+                ));
+            }
+        };
+        let s = sdfreg_core::RobustSettings {
+            mode,
+            kappa_start,
+            kappa_end,
+            floor,
+        };
+        s.validate().map_err(error::registration)?;
+        Ok(Self(s))
+    }
+
+    /// ``"auto"``, ``"on"``, ``"off"`` or ``"fixed"``.
+    #[getter]
+    fn mode(&self) -> &'static str {
+        self.0.mode.name()
+    }
+
+    /// The fixed scale (``mode="fixed"``), else None.
+    #[getter]
+    fn scale(&self) -> Option<f64> {
+        match self.0.mode {
+            RobustMode::Fixed { scale } => Some(scale),
+            _ => None,
+        }
+    }
+
+    /// See ``mode="auto"``.
+    #[getter]
+    fn below_fitness(&self) -> f64 {
+        self.auto_rule().0
+    }
+
+    /// See ``mode="auto"``.
+    #[getter]
+    fn gain(&self) -> f64 {
+        self.auto_rule().1
+    }
+
+    /// See ``mode="auto"``.
+    #[getter]
+    fn rerun_tie(&self) -> f64 {
+        self.auto_rule().2
+    }
+
+    /// κ at the first alternation.
+    #[getter]
+    fn kappa_start(&self) -> f64 {
+        self.0.kappa_start
+    }
+
+    /// κ at the last alternation.
+    #[getter]
+    fn kappa_end(&self) -> f64 {
+        self.0.kappa_end
+    }
+
+    /// Smallest adaptive scale.
+    #[getter]
+    fn floor(&self) -> f64 {
+        self.0.floor
+    }
+
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        let (below_fitness, gain, tie) = self.auto_rule();
+        repr(
+            "RobustSettings",
+            &[
+                ("mode", self.mode().into_bound_py_any(py)?),
+                ("below_fitness", below_fitness.expose(py)?),
+                ("gain", gain.expose(py)?),
+                ("rerun_tie", tie.expose(py)?),
+                ("scale", self.scale().into_bound_py_any(py)?),
+                ("kappa_start", self.0.kappa_start.expose(py)?),
+                ("kappa_end", self.0.kappa_end.expose(py)?),
+                ("floor", self.0.floor.expose(py)?),
+            ],
+        )
+    }
+}
+
+/// The robust argument of `register`: a mode name or a `RobustSettings`.
+pub fn robust_argument(obj: &Bound<'_, PyAny>) -> PyResult<sdfreg_core::RobustSettings> {
+    if let Ok(s) = obj.cast::<PyRobustSettings>() {
+        return Ok(s.get().0.clone());
+    }
+    let Ok(mode) = obj.extract::<String>() else {
+        return Err(error::argument(
+            "robust",
+            format!(
+                "expected \"auto\", \"on\", \"off\" or a RobustSettings, got {}",
+                obj.repr()?
+            ),
+        ));
+    };
+    let kwargs = PyDict::new(obj.py());
+    kwargs.set_item("mode", mode)?;
+    let built = obj
+        .py()
+        .get_type::<PyRobustSettings>()
+        .call((), Some(&kwargs))?;
+    Ok(built.cast::<PyRobustSettings>()?.get().0.clone())
+}
+
+/// The core's defaults of every settings group, as nested dicts (for the tests that check the
+/// Python defaults against them).
+pub fn core_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
+    let json = serde_json::to_string(&RegisterSettings::default())
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+    py.import("json")?.call_method1("loads", (json,))
+}
