@@ -115,6 +115,8 @@ pub struct PolishOutcome {
     /// Why the stage that set [`Self::pose`] stopped (the snap when it was kept, else the last
     /// local-plane pass).
     pub stop_reason: StopReason,
+    /// That stage's last step: rotation (radians) and translation (normalised units).
+    pub last_step: [f64; 2],
     /// Whether the source was found on the target's own points and snapped onto them.
     pub snapped: bool,
     /// Whether the polish moved too far and was undone.
@@ -172,17 +174,19 @@ enum Residuals {
 }
 
 /// Robust Gauss–Newton steps on the residuals `residual(x) → (r, n)` of the moved source points
-/// (row `[x × n; n]`); returns the pose, the iterations run and why it stopped.
+/// (row `[x × n; n]`); returns the pose, the iterations run, why it stopped and the last step
+/// (rotation in radians, translation in normalised units; infinite when none was taken).
 fn gauss_newton(
     source: &[Point3<f64>],
     pose: Isometry3<f64>,
     s: &PolishSettings,
     stage: Residuals,
     residual: impl Fn(&Point3<f64>) -> Option<(f64, Vector3<f64>)> + Sync,
-) -> (Isometry3<f64>, usize, StopReason) {
+) -> (Isometry3<f64>, usize, StopReason, [f64; 2]) {
     let start = pose;
     let mut pose = pose;
     let mut done = 0;
+    let mut last = [f64::INFINITY; 2];
     while done < s.iterations {
         done += 1;
         let terms: Vec<Option<(f64, Vector6<f64>)>> = source
@@ -195,7 +199,7 @@ fn gauss_newton(
             .collect();
         let used: Vec<&(f64, Vector6<f64>)> = terms.iter().flatten().collect();
         if used.len() < 6 {
-            return (pose, done, StopReason::NoDecrease);
+            return (pose, done, StopReason::NoDecrease, last);
         }
         let mut abs: Vec<f64> = used.iter().map(|t| t.0.abs()).collect();
         abs.sort_by(f64::total_cmp);
@@ -226,16 +230,18 @@ fn gauss_newton(
             g[k] += damping * drift[k];
         }
         let Some(delta) = h.cholesky().map(|ch| -ch.solve(&g)) else {
-            return (pose, done, StopReason::NoDecrease);
+            return (pose, done, StopReason::NoDecrease, last);
         };
         pose = exp_se3(&delta) * pose;
-        if delta.fixed_rows::<3>(0).norm() < s.tolerance
-            && delta.fixed_rows::<3>(3).norm() < s.tolerance
-        {
-            return (pose, done, StopReason::SmallStep);
+        last = [
+            delta.fixed_rows::<3>(0).norm(),
+            delta.fixed_rows::<3>(3).norm(),
+        ];
+        if last[0] < s.tolerance && last[1] < s.tolerance {
+            return (pose, done, StopReason::SmallStep, last);
         }
     }
-    (pose, done, StopReason::MaxIterations)
+    (pose, done, StopReason::MaxIterations, last)
 }
 
 /// Median over `points` of the distance to the nearest target point (excluding a point's own
@@ -278,13 +284,14 @@ pub fn polish(
     if gate < s.max_distance {
         gates.push(gate);
     }
-    let (mut pose, mut iterations, mut stop_reason) = (start, 0, StopReason::MaxIterations);
+    let (mut pose, mut iterations) = (start, 0);
+    let (mut stop_reason, mut last_step) = (StopReason::MaxIterations, [f64::INFINITY; 2]);
     for d in gates {
         let d2 = d * d;
-        let (p, n, stop) = gauss_newton(source, pose, s, Residuals::Planes, |x| {
+        let (p, n, stop, last) = gauss_newton(source, pose, s, Residuals::Planes, |x| {
             local_plane(target, tree, x, k, d2)
         });
-        (pose, stop_reason) = (p, stop);
+        (pose, stop_reason, last_step) = (p, stop, last);
         iterations += n;
     }
     // Snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
@@ -296,7 +303,7 @@ pub fn polish(
     if s.iterations > 0 {
         let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
             (0..target.len()).map(|_| OnceLock::new()).collect();
-        let (candidate, n, stop) = gauss_newton(source, pose, s, Residuals::Points, |x| {
+        let (candidate, n, stop, last) = gauss_newton(source, pose, s, Residuals::Points, |x| {
             let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
             if nn.distance as f64 > s.max_distance * s.max_distance {
                 return None;
@@ -315,7 +322,7 @@ pub fn polish(
             [x.x as f32, x.y as f32, x.z as f32]
         });
         if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
-            (pose, stop_reason) = (candidate, stop);
+            (pose, stop_reason, last_step) = (candidate, stop, last);
             snapped = true;
         }
     }
@@ -329,6 +336,7 @@ pub fn polish(
         pose: if undone { start } else { pose },
         iterations,
         stop_reason,
+        last_step,
         snapped,
         undone,
     }

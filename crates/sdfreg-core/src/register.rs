@@ -30,10 +30,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::cloud::{subsample, transformed_f32, validate, Normalization};
-use crate::coarse_to_fine::{alternate, final_lm, kernel_at};
+use crate::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::degeneracy::Degeneracy;
 use crate::error::{Error, Role};
-use crate::lm::StopReason;
+use crate::lm::{Lm, StopReason};
 use crate::measure::quality;
 use crate::multistart::initial_hypotheses;
 use crate::polish::{polish, PolishOutcome};
@@ -44,7 +44,7 @@ use crate::report::{
 use crate::robust::{keep_rerun, rerun_settings, KernelPolicy, RobustMode};
 use crate::sdf_fit::SdfFitter;
 use crate::settings::{RegisterSettings, MIN_POINTS};
-use crate::shift_search::search;
+use crate::shift_search::{search, Searched};
 
 /// Salt of the SDF fit's seed (its random stream differs from the registration's).
 const FIT_SEED_SALT: u64 = 0x5DF;
@@ -71,7 +71,11 @@ pub struct Registration {
     /// Whether the stage that set the final pose converged (the polish's last pass when it was
     /// applied, else the final LM): see [`Self::stop_reason`].
     pub converged: bool,
-    /// Why the stage that set the final pose stopped.
+    /// Why the stage that set the final pose stopped, judged by the LM's tolerances
+    /// ([`crate::LmSettings::rotation_tolerance`], [`crate::LmSettings::translation_tolerance`]):
+    /// a polish that ran out of iterations with a last step below them counts as
+    /// [`StopReason::SmallStep`] ([`Stages::polish`] keeps its own stop reason, under its
+    /// tighter tolerance).
     pub stop_reason: StopReason,
     /// LM iterations of the winning hypothesis (coarse-to-fine and final; multi-start excluded).
     pub iterations: usize,
@@ -206,8 +210,7 @@ fn run(
     let mut fit = prefit(target, s, progress);
     let (hypotheses, initial) = initial_pose(&fit, &unit, init, s, policy, &mut rng, progress);
     let alternated = alternate(&mut fit, &unit.source, &hypotheses, s, policy, progress);
-    let mut lm = alternated.lm;
-    let after_alternations = lm.pose;
+    let mut lm = alternated.lm.clone();
     progress(Stage::Final);
     let lm_stop = final_lm(&fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
     let polished = polish(&unit.source, fit.target(), fit.tree(), &lm.pose, &s.polish);
@@ -220,58 +223,96 @@ fn run(
         &s.polish,
         s.inlier_distance,
     );
+    let trace = Trace {
+        start: hypotheses[alternated.winner],
+        initial,
+        alternated,
+        lm,
+        lm_stop,
+        polished,
+        searched,
+    };
+    Ok(measure(&unit, &fit, s, policy, trace, start))
+}
 
-    // Stage 9: measure, and say what each stage did.
+/// What the stages of one run produced, in order.
+struct Trace {
+    /// The winning hypothesis's starting pose (unit frame).
+    start: Isometry3<f64>,
+    initial: InitialReport,
+    alternated: Alternated,
+    /// The solver after the final LM.
+    lm: Lm,
+    lm_stop: StopReason,
+    polished: PolishOutcome,
+    searched: Searched,
+}
+
+/// Stage 9: the result in the user's frame — its quality against the target and Φ, and what
+/// each stage did.
+fn measure(
+    unit: &Unit,
+    fit: &SdfFitter,
+    s: &RegisterSettings,
+    policy: KernelPolicy,
+    t: Trace,
+    start: Instant,
+) -> Registration {
     let change = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
         PoseChange::between(&unit.source, a, b, unit.norm.scale)
     };
+    let after_alternations = t.alternated.lm.pose;
     let polish_enabled = s.polish.iterations > 0;
-    let setter = searched.taken.as_ref().unwrap_or(&polished);
+    let setter = t.searched.taken.as_ref().unwrap_or(&t.polished);
     let stop_reason = if polish_enabled && !setter.undone {
-        setter.stop_reason
+        settled(setter, &s.lm)
     } else {
-        lm_stop
+        t.lm_stop
     };
     let stages = Stages {
         initial: InitialReport {
-            rotation_deg: hypotheses[alternated.winner].rotation.angle().to_degrees(),
-            ..initial
+            rotation_deg: t.start.rotation.angle().to_degrees(),
+            ..t.initial
         },
         coarse_to_fine: CoarseToFineReport {
-            survivors: alternated.survivors,
-            winner: alternated.winner,
-            change: change(&hypotheses[alternated.winner], &after_alternations),
+            survivors: t.alternated.survivors,
+            winner: t.alternated.winner,
+            change: change(&t.start, &after_alternations),
         },
         final_lm: FinalLmReport {
-            stop_reason: lm_stop,
-            change: change(&after_alternations, &lm.pose),
+            stop_reason: t.lm_stop,
+            change: change(&after_alternations, &t.lm.pose),
         },
         robust: RobustReport::Off,
-        polish: polish_report(&polished, polish_enabled, change(&lm.pose, &polished.pose)),
+        polish: polish_report(
+            &t.polished,
+            polish_enabled,
+            change(&t.lm.pose, &t.polished.pose),
+        ),
         shift_search: ShiftSearchReport {
-            peaks: searched.peaks,
-            taken: searched.taken.is_some(),
-            fitness_gain: searched.fitness - searched.start_fitness,
-            change: change(&polished.pose, &searched.pose),
+            peaks: t.searched.peaks,
+            taken: t.searched.taken.is_some(),
+            fitness_gain: t.searched.fitness - t.searched.start_fitness,
+            change: change(&t.polished.pose, &t.searched.pose),
         },
     };
-    let moved = transformed_f32(&unit.source, &searched.pose);
+    let moved = transformed_f32(&unit.source, &t.searched.pose);
     let q = quality(fit.mlp(), &moved, &unit.norm, s.free_motion_ratio);
-    Ok(Registration {
-        t_target_source: unit.norm.pose_from_unit(&searched.pose),
+    Registration {
+        t_target_source: unit.norm.pose_from_unit(&t.searched.pose),
         converged: stop_reason.converged(),
         stop_reason,
-        iterations: lm.iterations,
+        iterations: t.lm.iterations,
         cost: q.cost,
-        fitness: searched.fitness,
-        inlier_rmse: searched.inlier_rms * unit.norm.scale,
+        fitness: t.searched.fitness,
+        inlier_rmse: t.searched.inlier_rms * unit.norm.scale,
         inlier_distance: s.inlier_distance * unit.norm.scale,
         information: q.information,
         degeneracy: q.degeneracy,
         robust: policy.is_robust(),
         stages,
         time: start.elapsed(),
-    })
+    }
 }
 
 /// The source in the target's unit frame.
@@ -362,6 +403,18 @@ fn initial_pose(
     (found.poses, report)
 }
 
+/// Why the polish stopped, judged by the registration's convergence tolerances (the LM's): its
+/// own tolerance is far tighter ([`crate::PolishSettings::tolerance`]), so a polish that ran out
+/// of iterations with a last step below the LM's tolerances has settled as far as the
+/// registration asks ([`StopReason::SmallStep`]).
+fn settled(p: &PolishOutcome, lm: &crate::LmSettings) -> StopReason {
+    let small = p.last_step[0] < lm.rotation_tolerance && p.last_step[1] < lm.translation_tolerance;
+    match p.stop_reason {
+        StopReason::MaxIterations if small => StopReason::SmallStep,
+        reason => reason,
+    }
+}
+
 /// Stage 7's report: what the polish did, `change` being how far it moved the source.
 fn polish_report(p: &PolishOutcome, enabled: bool, change: PoseChange) -> PolishReport {
     let result = match (enabled, p.undone, p.snapped) {
@@ -375,5 +428,32 @@ fn polish_report(p: &PolishOutcome, enabled: bool, change: PoseChange) -> Polish
         iterations: p.iterations,
         stop_reason: p.stop_reason,
         change,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outcome(stop_reason: StopReason, last_step: [f64; 2]) -> PolishOutcome {
+        PolishOutcome {
+            pose: Isometry3::identity(),
+            iterations: 50,
+            stop_reason,
+            last_step,
+            snapped: false,
+            undone: false,
+        }
+    }
+
+    #[test]
+    fn a_polish_at_its_cap_has_settled_when_its_last_step_is_below_the_lm_tolerances() {
+        let lm = crate::LmSettings::default();
+        let capped = |step| settled(&outcome(StopReason::MaxIterations, step), &lm);
+        assert_eq!(capped([4e-7, 2e-7]), StopReason::SmallStep);
+        assert_eq!(capped([1.2e-5, 5e-6]), StopReason::MaxIterations);
+        assert_eq!(capped([1e-6, 2e-5]), StopReason::MaxIterations);
+        let stuck = outcome(StopReason::NoDecrease, [f64::INFINITY; 2]);
+        assert_eq!(settled(&stuck, &lm), StopReason::NoDecrease);
     }
 }

@@ -10,7 +10,9 @@ use std::path::Path;
 
 use nalgebra::Point3;
 use ply_rs_bw::parser::Parser;
-use ply_rs_bw::ply::{ElementDef, Encoding, Property, PropertyAccess, PropertyType, ScalarType};
+use ply_rs_bw::ply::{
+    ElementDef, Encoding, Header, Property, PropertyAccess, PropertyType, ScalarType,
+};
 
 use crate::error::IoError;
 
@@ -208,13 +210,19 @@ fn ply_rs_message(e: &std::io::Error) -> (String, Option<String>) {
     (head.to_string(), quoted)
 }
 
-fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
-    let at = |line: Option<u64>, message: String| IoError::Parse {
+/// A parse error of `path` at `line` (one-based, when known).
+fn parse_error(path: &Path, line: Option<u64>, message: String) -> IoError {
+    IoError::Parse {
         path: path.into(),
         line: line.map(|l| l as usize),
         message,
-    };
-    let parse = |message: String| at(None, message);
+    }
+}
+
+/// Points and triangles (fans of the polygons) of a PLY file: the header, each element's rows,
+/// nothing after the last element.
+fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
+    let parse = |message: String| parse_error(path, None, message);
     let mut reader = Counting {
         inner: reader,
         bytes: 0,
@@ -222,21 +230,9 @@ fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::Mes
         lines: true,
     };
     let parser = Parser::<E>::new();
-    let header = parser.read_header(&mut reader).map_err(|e| {
-        let (head, _) = ply_rs_message(&e);
-        // ply-rs counts header lines from 1 as "Line N: ...".
-        let line = head
-            .strip_prefix("Line ")
-            .and_then(|r| r.split_once(':'))
-            .and_then(|(n, _)| n.trim().parse::<u64>().ok());
-        let what = match line {
-            Some(_) => head
-                .split_once(':')
-                .map_or(head.as_str(), |(_, m)| m.trim()),
-            None => head.as_str(),
-        };
-        at(line, format!("not a valid PLY header: {what}"))
-    })?;
+    let header = parser
+        .read_header(&mut reader)
+        .map_err(|e| header_error(path, &e))?;
     let ascii = header.encoding == Encoding::Ascii;
     reader.lines = ascii;
     let vertex = header
@@ -253,86 +249,136 @@ fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::Mes
     let mut points = Vec::new();
     let mut face_rows = Vec::new();
     for (name, def) in &header.elements {
-        let (start_byte, start_line) = (reader.bytes, reader.line_ends);
-        let declared = def.count;
+        let start = (reader.bytes, reader.line_ends);
         let rows = parser
             .read_payload_for_element(&mut reader, def, &header)
-            .map_err(|e| {
-                let (head, quoted) = ply_rs_message(&e);
-                let eof = head.contains("end of file");
-                let columns = def.properties.len();
-                match (ascii, eof) {
-                    (true, true) => at(
-                        Some(reader.line_ends + 1),
-                        format!(
-                            "the file ends after {} of the {declared} `{name}` rows the header \
-                             declares",
-                            reader.line_ends - start_line
-                        ),
-                    ),
-                    (true, false) => at(
-                        Some(reader.line_ends),
-                        format!(
-                            "`{name}` row {}: expected {columns} numbers as the header declares{}",
-                            (reader.line_ends - start_line).saturating_sub(1),
-                            quoted.map(|q| format!(", found {q:?}")).unwrap_or_default()
-                        ),
-                    ),
-                    (false, _) => {
-                        let size = row_size(def);
-                        let row = size
-                            .map(|b| {
-                                let row = (reader.bytes - start_byte) / b;
-                                format!(" row {row} (0-based) of the {declared} declared")
-                            })
-                            .unwrap_or_default();
-                        parse(format!(
-                            "byte {}: {} inside `{name}`{row}; the element starts at byte \
-                             {start_byte}{}",
-                            reader.bytes,
-                            if eof {
-                                "the file ends"
-                            } else {
-                                "unreadable data"
-                            },
-                            size.map(|b| format!(
-                                " and needs {declared} rows of {b} bytes = {} bytes",
-                                declared as u64 * b
-                            ))
-                            .unwrap_or_default()
-                        ))
-                    }
-                }
-            })?;
-        if name == "face" {
-            face_rows = rows;
-            continue;
-        }
-        if name != "vertex" {
-            continue;
-        }
-        points.reserve_exact(rows.len());
-        for (i, row) in rows.iter().enumerate() {
-            let (xyz, seen) = row.xyz();
-            if seen != 0b111 {
-                let k = (0..3).find(|k| seen & (1 << k) == 0).unwrap_or(0);
-                return Err(parse(format!(
-                    "vertex {i}: `{}` is missing or not a number",
-                    ["x", "y", "z"][k]
-                )));
-            }
-            points.push(Point3::from(xyz));
+            .map_err(|e| payload_error(path, &e, def, ascii, start, &reader))?;
+        match name.as_str() {
+            "face" => face_rows = rows,
+            "vertex" => points = vertices(&rows).map_err(parse)?,
+            _ => {}
         }
     }
-    // Anything but white space after the last element: the header's counts are wrong.
+    refuse_trailing_data(path, &mut reader, &header, ascii)?;
+    let triangles = triangles(&face_rows, points.len()).map_err(parse)?;
+    Ok((points, triangles))
+}
+
+/// ply-rs's header error, with the line it names.
+fn header_error(path: &Path, e: &std::io::Error) -> IoError {
+    let (head, _) = ply_rs_message(e);
+    // ply-rs counts header lines from 1 as "Line N: ...".
+    let line = head
+        .strip_prefix("Line ")
+        .and_then(|r| r.split_once(':'))
+        .and_then(|(n, _)| n.trim().parse::<u64>().ok());
+    let what = match line {
+        Some(_) => head
+            .split_once(':')
+            .map_or(head.as_str(), |(_, m)| m.trim()),
+        None => head.as_str(),
+    };
+    parse_error(path, line, format!("not a valid PLY header: {what}"))
+}
+
+/// ply-rs's error inside the rows of element `def`, which started at `start` (byte, line ends):
+/// the line and row (ascii) or the byte, row and the element's extent (binary).
+fn payload_error<R: BufRead>(
+    path: &Path,
+    e: &std::io::Error,
+    def: &ElementDef,
+    ascii: bool,
+    (start_byte, start_line): (u64, u64),
+    reader: &Counting<R>,
+) -> IoError {
+    let (head, quoted) = ply_rs_message(e);
+    let eof = head.contains("end of file");
+    let (name, declared) = (&def.name, def.count);
+    match (ascii, eof) {
+        (true, true) => parse_error(
+            path,
+            Some(reader.line_ends + 1),
+            format!(
+                "the file ends after {} of the {declared} `{name}` rows the header declares",
+                reader.line_ends - start_line
+            ),
+        ),
+        (true, false) => parse_error(
+            path,
+            Some(reader.line_ends),
+            format!(
+                "`{name}` row {}: expected {} numbers as the header declares{}",
+                (reader.line_ends - start_line).saturating_sub(1),
+                def.properties.len(),
+                quoted.map(|q| format!(", found {q:?}")).unwrap_or_default()
+            ),
+        ),
+        (false, _) => {
+            let size = row_size(def);
+            let row = size
+                .map(|b| {
+                    let row = (reader.bytes - start_byte) / b;
+                    format!(" row {row} (0-based) of the {declared} declared")
+                })
+                .unwrap_or_default();
+            let what = if eof {
+                "the file ends"
+            } else {
+                "unreadable data"
+            };
+            let extent = size
+                .map(|b| {
+                    format!(
+                        " and needs {declared} rows of {b} bytes = {} bytes",
+                        declared as u64 * b
+                    )
+                })
+                .unwrap_or_default();
+            parse_error(
+                path,
+                None,
+                format!(
+                    "byte {}: {what} inside `{name}`{row}; the element starts at byte \
+                     {start_byte}{extent}",
+                    reader.bytes
+                ),
+            )
+        }
+    }
+}
+
+/// The `vertex` rows as points; a row without a numeric x, y or z is refused.
+fn vertices<E: Row>(rows: &[E]) -> Result<Vec<Point3<f64>>, String> {
+    let mut points = Vec::with_capacity(rows.len());
+    for (i, row) in rows.iter().enumerate() {
+        let (xyz, seen) = row.xyz();
+        if seen != 0b111 {
+            let k = (0..3).find(|k| seen & (1 << k) == 0).unwrap_or(0);
+            return Err(format!(
+                "vertex {i}: `{}` is missing or not a number",
+                ["x", "y", "z"][k]
+            ));
+        }
+        points.push(Point3::from(xyz));
+    }
+    Ok(points)
+}
+
+/// Refuses anything but white space after the last element: the header's counts are wrong.
+fn refuse_trailing_data<R: BufRead>(
+    path: &Path,
+    reader: &mut Counting<R>,
+    header: &Header,
+    ascii: bool,
+) -> Result<(), IoError> {
     loop {
         let bytes = reader.bytes;
         let buf = reader
             .fill_buf()
-            .map_err(|e| parse(format!("byte {bytes}: {e}")))?;
+            .map_err(|e| parse_error(path, None, format!("byte {bytes}: {e}")))?;
         let n = buf.len();
         if n == 0 {
-            break;
+            return Ok(());
         }
         let Some(k) = buf.iter().position(|b| !b.is_ascii_whitespace()) else {
             reader.consume(n);
@@ -349,34 +395,39 @@ fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::Mes
             counts.join(", ")
         );
         return Err(if ascii {
-            at(Some(reader.line_ends + 1), message)
+            parse_error(path, Some(reader.line_ends + 1), message)
         } else {
-            parse(format!("byte {}: {message}", reader.bytes))
+            parse_error(path, None, format!("byte {}: {message}", reader.bytes))
         });
     }
-    let mut triangles = Vec::new();
-    for (i, face) in face_rows.iter().enumerate() {
-        let n = points.len() as i64;
+}
+
+/// The `face` rows as triangles (polygons as fans) over `n` vertices; indices out of range and
+/// faces of fewer than 3 vertices are refused.
+fn triangles<E: Row>(faces: &[E], n: usize) -> Result<Vec<[usize; 3]>, String> {
+    let n = n as i64;
+    let mut out = Vec::new();
+    for (i, face) in faces.iter().enumerate() {
         let v = face.indices();
         if v.is_empty() {
             continue; // a cloud's faces are not asked for
         }
         if let Some(&bad) = v.iter().find(|&&k| k < 0 || k >= n) {
-            return Err(parse(format!(
+            return Err(format!(
                 "face {i}: vertex index {bad} is out of range (the file has {n} vertices)"
-            )));
+            ));
         }
         if v.len() < 3 {
-            return Err(parse(format!(
+            return Err(format!(
                 "face {i}: {} vertex indices, a face needs at least 3",
                 v.len()
-            )));
+            ));
         }
         for k in 1..v.len() - 1 {
-            triangles.push([v[0] as usize, v[k] as usize, v[k + 1] as usize]);
+            out.push([v[0] as usize, v[k] as usize, v[k + 1] as usize]);
         }
     }
-    Ok((points, triangles))
+    Ok(out)
 }
 
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
