@@ -2,4 +2,5 @@
 
 mod common;
 mod io;
+mod model;
 mod register;

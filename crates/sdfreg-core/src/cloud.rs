@@ -116,6 +116,11 @@ impl Normalization {
         Point3::from((p.coords - self.centre) / self.scale)
     }
 
+    /// A unit-frame point back in the user's frame: `x · scale + centre`.
+    pub fn to_user(&self, x: &Vector3<f64>) -> Point3<f64> {
+        Point3::from(x * self.scale + self.centre)
+    }
+
     /// A rigid transform between user frames expressed between unit frames: `N T N⁻¹`.
     pub fn pose_to_unit(&self, t: &Isometry3<f64>) -> Isometry3<f64> {
         let r = t.rotation;

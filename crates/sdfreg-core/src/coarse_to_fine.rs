@@ -10,6 +10,8 @@
 //!
 //! Entry points: [`alternate`], [`final_lm`].
 
+use std::borrow::Cow;
+
 use nalgebra::{Isometry3, Point3};
 
 use crate::cloud::transformed_f32;
@@ -32,14 +34,17 @@ pub(crate) struct Alternated {
 }
 
 /// The alternations of Φ refinement and LM steps over every hypothesis (unit frame), from
-/// `hypotheses`; returns the best-fitting one's solver. `tie` decides the halfway drop and the
-/// final pick ([`crate::MultistartSettings::tie`]); `tau2` is the score's truncation².
+/// `hypotheses`; returns the best-fitting one's solver. Without `refine`, Φ stays as it is (a
+/// stored model's) and only the LM steps run; with it, `fit` becomes a private copy the first
+/// time it is trained. [`crate::MultistartSettings::tie`] decides the halfway drop and the
+/// final pick.
 pub(crate) fn alternate(
-    fit: &mut SdfFitter,
+    fit: &mut Cow<'_, SdfFitter>,
     source: &[Point3<f64>],
     hypotheses: &[Isometry3<f64>],
     s: &RegisterSettings,
     policy: KernelPolicy,
+    refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Alternated {
     let c = &s.coarse_to_fine;
@@ -56,23 +61,29 @@ pub(crate) fn alternate(
         for (_, lm) in &lms {
             let moved = transformed_f32(source, &lm.pose);
             if !policy.is_robust() {
-                fit.add_source_queries(&moved);
+                if refine {
+                    fit.to_mut().add_source_queries(&moved);
+                }
                 kernels.push(Kernel::L2);
                 continue;
             }
             let (phi, _) = fit.mlp().eval(&moved, false);
             let kernel = policy.kernel(&phi, kappa);
-            let scale = kernel.scale().unwrap_or(f64::INFINITY);
-            let near: Vec<[f32; 3]> = moved
-                .iter()
-                .zip(&phi)
-                .filter(|(_, v)| (v.abs() as f64) < scale)
-                .map(|(x, _)| *x)
-                .collect();
-            fit.add_source_queries(&near);
+            if refine {
+                let scale = kernel.scale().unwrap_or(f64::INFINITY);
+                let near: Vec<[f32; 3]> = moved
+                    .iter()
+                    .zip(&phi)
+                    .filter(|(_, v)| (v.abs() as f64) < scale)
+                    .map(|(x, _)| *x)
+                    .collect();
+                fit.to_mut().add_source_queries(&near);
+            }
             kernels.push(kernel);
         }
-        fit.train(s.fit.refine_steps, s.fit.refine_lr);
+        if refine {
+            fit.to_mut().train(s.fit.refine_steps, s.fit.refine_lr);
+        }
         for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
             lm.run(fit.mlp(), source, kernel, c.lm_steps_per_alternation);
         }

@@ -110,6 +110,15 @@ pub enum IoError {
         /// What was found and what was expected.
         message: String,
     },
+    /// A model file (`.sdfm`) that cannot be used: truncated, corrupted, of another program or
+    /// of a newer format version.
+    #[error("{path}: {reason}")]
+    BadModel {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// The file holds no points.
     #[error("{path}: no points found")]
     Empty {

@@ -65,6 +65,8 @@ mod coarse_to_fine;
 mod degeneracy;
 mod error;
 mod measure;
+mod model;
+pub mod model_file;
 mod multistart;
 mod polish;
 mod register;
@@ -77,6 +79,7 @@ pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use error::{Error, IoError, Role};
 pub use lm::{LmSettings, StopReason};
 pub use mlp::MlpSettings;
+pub use model::SdfModel;
 pub use polish::{PolishSettings, SNAP_RATIO};
 pub use register::{register, register_with_progress, Registration, Stage};
 pub use report::{

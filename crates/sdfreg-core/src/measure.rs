@@ -4,7 +4,7 @@
 //! Entry points: [`inlier_stats`], [`quality`].
 
 use kiddo::SquaredEuclidean;
-use nalgebra::{Matrix6, Point3, Vector3};
+use nalgebra::{Matrix6, Vector3};
 use rayon::prelude::*;
 
 use crate::cloud::Normalization;
@@ -53,12 +53,12 @@ pub(crate) fn quality(mlp: &Mlp, moved: &[[f32; 3]], norm: &Normalization, ratio
     let mut moved_user = Vec::with_capacity(moved.len());
     let mut normals = Vec::with_capacity(moved.len());
     for ((x, g), r) in moved.iter().zip(&grads).zip(&phi) {
-        let xu = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64) * norm.scale + norm.centre;
+        let xu = norm.to_user(&Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64));
         let n = Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64);
-        let j = jacobian_row(&xu, &n);
+        let j = jacobian_row(&xu.coords, &n);
         information += j * j.transpose();
         cost += (*r as f64 * norm.scale).powi(2);
-        moved_user.push(Point3::from(xu));
+        moved_user.push(xu);
         normals.push(n);
     }
     Quality {

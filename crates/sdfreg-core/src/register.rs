@@ -23,6 +23,7 @@
 //! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
 //! `p_target = R p_source + t`, in the units of the inputs.
 
+use std::borrow::Cow;
 use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Matrix4, Matrix6, Point3};
@@ -35,6 +36,7 @@ use crate::degeneracy::Degeneracy;
 use crate::error::{Error, Role};
 use crate::lm::{Lm, StopReason};
 use crate::measure::quality;
+use crate::model::SdfModel;
 use crate::multistart::initial_hypotheses;
 use crate::polish::{polish, PolishOutcome};
 use crate::report::{
@@ -45,9 +47,6 @@ use crate::robust::{keep_rerun, rerun_settings, KernelPolicy, RobustMode};
 use crate::sdf_fit::SdfFitter;
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::shift_search::{search, Searched};
-
-/// Salt of the SDF fit's seed (its random stream differs from the registration's).
-const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Progress reported while registering.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -128,23 +127,81 @@ pub fn register_with_progress(
     settings: &RegisterSettings,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
+    let start = Instant::now();
+    check_inputs(source, init, settings)?;
+    validate(target, Role::Target, MIN_POINTS)?;
+    let mut r = in_pool(settings.threads, || {
+        let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+        let source = subsample(source, settings.max_source_points, &mut rng);
+        let model = SdfModel::fit_drawing(target, settings, &mut rng, progress)?;
+        register_drawn(&model, &source, rng, init, settings, true, progress)
+    })??;
+    r.time = start.elapsed();
+    Ok(r)
+}
+
+/// [`crate::SdfModel::register`] (`refine` false) and [`crate::SdfModel::register_refined`].
+pub(crate) fn against_model(
+    model: &SdfModel,
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    check_inputs(source, init, settings)?;
+    in_pool(settings.threads, || {
+        let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+        let source = subsample(source, settings.max_source_points, &mut rng);
+        register_drawn(model, &source, rng, init, settings, refine, progress)
+    })?
+}
+
+/// Checks the settings, the source and the initial guess.
+fn check_inputs(
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<(), Error> {
     settings.validate()?;
     validate(source, Role::Source, MIN_POINTS)?;
-    validate(target, Role::Target, MIN_POINTS)?;
     if init.is_some_and(|t| !t.to_homogeneous().iter().all(|v| v.is_finite())) {
         return Err(Error::InvalidInit);
     }
+    Ok(())
+}
+
+/// Runs `f` in a pool of `threads` workers (0 = one per core), never rayon's global one.
+pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> Result<R, Error> {
     let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads)
+        .num_threads(threads)
         .build()
         .map_err(|e| Error::ThreadPool(e.to_string()))?;
-    pool.install(|| {
-        let policy = settings.robust.first_run();
-        let first = run(source, target, init, settings, policy, progress)?;
-        robust_rerun(first, settings, |s, p| {
-            run(source, target, init, s, p, progress)
-        })
-    })
+    Ok(pool.install(f))
+}
+
+/// Stages 3–9 for the already subsampled `source` against `model`, `rng` being the
+/// registration's random stream after the subsampling; the robust re-run (stage 6) starts again
+/// from the same model and stream.
+fn register_drawn(
+    model: &SdfModel,
+    source: &[Point3<f64>],
+    rng: ChaCha8Rng,
+    init: Option<&Isometry3<f64>>,
+    s: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let start = Instant::now();
+    let unit = in_unit_frame(&model.norm, source)?;
+    let run = |s: &RegisterSettings, policy| {
+        let mut rng = rng.clone();
+        run(model, &unit, &mut rng, init, s, policy, refine, progress)
+    };
+    let first = run(s, s.robust.first_run());
+    let mut r = robust_rerun(first, s, run);
+    r.time = start.elapsed();
+    Ok(r)
 }
 
 /// Stage 6: the robust re-run of [`RobustMode::Auto`] after a least-squares result that fits
@@ -153,8 +210,8 @@ pub fn register_with_progress(
 fn robust_rerun(
     first: Registration,
     settings: &RegisterSettings,
-    rerun: impl FnOnce(&RegisterSettings, KernelPolicy) -> Result<Registration, Error>,
-) -> Result<Registration, Error> {
+    rerun: impl FnOnce(&RegisterSettings, KernelPolicy) -> Registration,
+) -> Registration {
     let least_squares_fitness = first.fitness;
     let Some((scans, policy)) = rerun_settings(settings, least_squares_fitness) else {
         let robust = match settings.robust.mode {
@@ -164,52 +221,55 @@ fn robust_rerun(
             RobustMode::Off => RobustReport::Off,
             _ => RobustReport::FromStart,
         };
-        return Ok(with_robust(first, robust, Duration::ZERO));
+        return with_robust(first, robust);
     };
-    let second = rerun(&scans, policy)?;
+    let second = rerun(&scans, policy);
     let robust_fitness = second.fitness;
-    let time = first.time;
-    Ok(
-        if keep_rerun(&settings.robust.mode, least_squares_fitness, robust_fitness) {
-            let report = RobustReport::RerunKept {
-                least_squares_fitness,
-                robust_fitness,
-            };
-            with_robust(second, report, time)
-        } else {
-            let report = RobustReport::RerunRejected {
-                least_squares_fitness,
-                robust_fitness,
-            };
-            let time = second.time;
-            with_robust(first, report, time)
-        },
-    )
+    if keep_rerun(&settings.robust.mode, least_squares_fitness, robust_fitness) {
+        let report = RobustReport::RerunKept {
+            least_squares_fitness,
+            robust_fitness,
+        };
+        with_robust(second, report)
+    } else {
+        let report = RobustReport::RerunRejected {
+            least_squares_fitness,
+            robust_fitness,
+        };
+        with_robust(first, report)
+    }
 }
 
-/// `r` with its robust report, and `extra` time (the other run's) added.
-fn with_robust(mut r: Registration, report: RobustReport, extra: Duration) -> Registration {
+/// `r` with its robust report.
+fn with_robust(mut r: Registration, report: RobustReport) -> Registration {
     r.stages.robust = report;
-    r.time += extra;
     r
 }
 
-/// One registration run with the kernel `policy`: the stage list of the module docs, less the
-/// robust re-run (which calls it again).
+/// One registration run with the kernel `policy` against `model` (a private copy of Φ refined
+/// when `refine`): stages 3–9 of the module docs, less the robust re-run (which calls it again).
+#[allow(clippy::too_many_arguments)]
 fn run(
-    source: &[Point3<f64>],
-    target: &[Point3<f64>],
+    model: &SdfModel,
+    unit: &Unit,
+    rng: &mut ChaCha8Rng,
     init: Option<&Isometry3<f64>>,
     s: &RegisterSettings,
     policy: KernelPolicy,
+    refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
-) -> Result<Registration, Error> {
-    let start = Instant::now();
-    let mut rng = ChaCha8Rng::seed_from_u64(s.seed);
-    let (unit, target) = normalise(source, target, s, &mut rng)?;
-    let mut fit = prefit(target, s, progress);
-    let (hypotheses, initial) = initial_pose(&fit, &unit, init, s, policy, &mut rng, progress);
-    let alternated = alternate(&mut fit, &unit.source, &hypotheses, s, policy, progress);
+) -> Registration {
+    let mut fit = Cow::Borrowed(&model.fitter);
+    let (hypotheses, initial) = initial_pose(&fit, unit, init, s, policy, rng, progress);
+    let alternated = alternate(
+        &mut fit,
+        &unit.source,
+        &hypotheses,
+        s,
+        policy,
+        refine,
+        progress,
+    );
     let mut lm = alternated.lm.clone();
     progress(Stage::Final);
     let lm_stop = final_lm(&fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
@@ -232,7 +292,7 @@ fn run(
         polished,
         searched,
     };
-    Ok(measure(&unit, &fit, s, policy, trace, start))
+    measure(unit, &fit, s, policy, trace)
 }
 
 /// What the stages of one run produced, in order.
@@ -256,7 +316,6 @@ fn measure(
     s: &RegisterSettings,
     policy: KernelPolicy,
     t: Trace,
-    start: Instant,
 ) -> Registration {
     let change = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
         PoseChange::between(&unit.source, a, b, unit.norm.scale)
@@ -311,7 +370,7 @@ fn measure(
         degeneracy: q.degeneracy,
         robust: policy.is_robust(),
         stages,
-        time: start.elapsed(),
+        time: Duration::ZERO,
     }
 }
 
@@ -323,23 +382,10 @@ struct Unit {
     source: Vec<Point3<f64>>,
 }
 
-/// Stage 1: the target's normalisation, and both clouds subsampled (seeded by `rng`) into its
-/// unit frame, the target as f32 (Φ's precision); a source with no extent there is refused.
-fn normalise(
-    source: &[Point3<f64>],
-    target: &[Point3<f64>],
-    s: &RegisterSettings,
-    rng: &mut ChaCha8Rng,
-) -> Result<(Unit, Vec<[f32; 3]>), Error> {
-    let norm = Normalization::from_target(target)?;
-    let source: Vec<Point3<f64>> = subsample(source, s.max_source_points, rng)
-        .iter()
-        .map(|p| norm.to_unit_f64(p))
-        .collect();
-    let target: Vec<[f32; 3]> = subsample(target, s.max_target_points, rng)
-        .iter()
-        .map(|p| norm.to_unit(p))
-        .collect();
+/// Stage 1 for the source: the (subsampled) source in the target's unit frame; a source with no
+/// extent there is refused. (The target's part is [`SdfModel::fit`]'s.)
+fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, Error> {
+    let source: Vec<Point3<f64>> = source.iter().map(|p| norm.to_unit_f64(p)).collect();
     let (lo, hi) = crate::cloud::bounding_box(&source).expect("validated non-empty");
     if (hi - lo).max() < 1e-9 {
         return Err(Error::NoExtent {
@@ -347,26 +393,10 @@ fn normalise(
             extent: (hi - lo).max() * norm.scale,
         });
     }
-    Ok((Unit { norm, source }, target))
-}
-
-/// Stage 2: Φ pre-fitted on the unit-frame target, reporting progress every tenth.
-fn prefit(
-    target: Vec<[f32; 3]>,
-    s: &RegisterSettings,
-    progress: &(dyn Fn(Stage) + Sync),
-) -> SdfFitter {
-    let mut fit = SdfFitter::new(target, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT);
-    let total = s.fit.prefit_steps;
-    let chunk = 50.max(total / 10);
-    let mut done = 0;
-    while done < total {
-        let n = chunk.min(total - done);
-        fit.train(n, s.fit.prefit_lr);
-        done += n;
-        progress(Stage::Prefit(done, total));
-    }
-    fit
+    Ok(Unit {
+        norm: *norm,
+        source,
+    })
 }
 
 /// Stage 3: the hypotheses (unit frame) the coarse-to-fine loop starts from — the caller's

@@ -151,6 +151,21 @@ struct Query {
     w: f32,
 }
 
+/// The part of an [`SdfFitter`] that fitting changes (see [`SdfFitter::state`]).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct FitterState {
+    /// Φ's parameters.
+    pub params: Vec<f32>,
+    /// Adam's first moments.
+    pub adam_m: Vec<f32>,
+    /// Adam's second moments.
+    pub adam_v: Vec<f32>,
+    /// Adam steps taken.
+    pub adam_steps: i32,
+    /// Position in the fit's random stream.
+    pub rng_word_pos: u128,
+}
+
 /// Loss terms of the last Adam step, for monitoring.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FitLoss {
@@ -283,6 +298,42 @@ impl SdfFitter {
     /// The k-d tree over the target points.
     pub fn tree(&self) -> &Tree {
         &self.tree
+    }
+
+    /// The fit's settings.
+    pub fn settings(&self) -> &FitSettings {
+        &self.settings
+    }
+
+    /// What a fitter holds beyond what [`SdfFitter::new`] rebuilds from the target, the
+    /// settings and the seed: Φ's parameters, the optimiser's moments and step count, and the
+    /// position in the random stream. Moved-source queries are not part of it.
+    pub(crate) fn state(&self) -> FitterState {
+        FitterState {
+            params: self.mlp.params().to_vec(),
+            adam_m: self.adam.m.clone(),
+            adam_v: self.adam.v.clone(),
+            adam_steps: self.adam.t,
+            rng_word_pos: self.rng.get_word_pos(),
+        }
+    }
+
+    /// Restores a [`FitterState`] taken from a fitter built with the same target, settings and
+    /// seed; `None` when its vectors do not fit this network.
+    pub(crate) fn restore(&mut self, state: FitterState) -> Option<()> {
+        let n = self.mlp.num_params();
+        if state.params.len() != n || state.adam_m.len() != n || state.adam_v.len() != n {
+            return None;
+        }
+        self.mlp.params_mut().copy_from_slice(&state.params);
+        self.adam = Adam {
+            m: state.adam_m,
+            v: state.adam_v,
+            t: state.adam_steps,
+        };
+        self.rng.set_word_pos(state.rng_word_pos);
+        self.source_queries.clear();
+        Some(())
     }
 
     /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).

@@ -1,0 +1,256 @@
+//! The fitted target as an object: fit Φ once, then register many sources against it, query it,
+//! save it and load it.
+//!
+//! [`SdfModel::fit`] runs the first two stages of [`crate::register()`] on the target alone
+//! (normalise, pre-fit Φ) and keeps everything a registration needs of the target: the
+//! normalisation, Φ with the state of its fit (optimiser moments, random stream), and the
+//! (subsampled) target points the polish, the shift search and the quality figures use.
+//! [`SdfModel::register`] runs the remaining stages against it with Φ frozen — no Adam step, the
+//! cost of a registration without the 85 % that fitting takes; [`SdfModel::register_refined`]
+//! refines a private copy of Φ with the moved source among its queries, as
+//! [`crate::register()`] does (same numbers, for targets within
+//! [`crate::RegisterSettings::max_target_points`]).
+//!
+//! Queries ([`SdfModel::distance`], [`SdfModel::gradient`], [`SdfModel::closest_points`]) take and
+//! return the target's own units and frame. Files: [`SdfModel::save`] / [`SdfModel::load`]
+//! (`.sdfm`, a safetensors file; layout in [`crate::model_file`]).
+
+use nalgebra::{Point3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::cloud::{subsample, validate, Normalization};
+use crate::error::{Error, Role};
+use crate::mlp::{Mlp, MlpSettings};
+use crate::sdf_fit::SdfFitter;
+use crate::settings::{RegisterSettings, MIN_POINTS};
+use crate::{Registration, Stage};
+
+/// Salt of the SDF fit's seed (its random stream differs from the registration's).
+pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
+
+/// A target fitted once: its normalisation, Φ and the target points (see the module docs).
+#[derive(Clone, Debug)]
+pub struct SdfModel {
+    pub(crate) norm: Normalization,
+    pub(crate) fitter: SdfFitter,
+    pub(crate) mlp: MlpSettings,
+    pub(crate) seed: u64,
+}
+
+impl SdfModel {
+    /// Fits Φ to `target` (user units and frame) with `settings.mlp`, `settings.fit`,
+    /// `settings.max_target_points` and `settings.seed`; the other settings are the
+    /// registration's.
+    pub fn fit(target: &[Point3<f64>], settings: &RegisterSettings) -> Result<Self, Error> {
+        Self::fit_with_progress(target, settings, &|_| {})
+    }
+
+    /// [`SdfModel::fit`] with a progress callback (the pre-fit's steps).
+    pub fn fit_with_progress(
+        target: &[Point3<f64>],
+        settings: &RegisterSettings,
+        progress: &(dyn Fn(Stage) + Sync),
+    ) -> Result<Self, Error> {
+        settings.validate()?;
+        validate(target, Role::Target, MIN_POINTS)?;
+        crate::register::in_pool(settings.threads, || {
+            let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+            Self::fit_drawing(target, settings, &mut rng, progress)
+        })?
+    }
+
+    /// The fit, drawing the target's subsample from `rng` (the registration's stream, so that
+    /// [`crate::register()`] keeps its numbers).
+    pub(crate) fn fit_drawing(
+        target: &[Point3<f64>],
+        s: &RegisterSettings,
+        rng: &mut ChaCha8Rng,
+        progress: &(dyn Fn(Stage) + Sync),
+    ) -> Result<Self, Error> {
+        let norm = Normalization::from_target(target)?;
+        let unit: Vec<[f32; 3]> = subsample(target, s.max_target_points, rng)
+            .iter()
+            .map(|p| norm.to_unit(p))
+            .collect();
+        let mut fitter = SdfFitter::new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT);
+        let total = s.fit.prefit_steps;
+        let chunk = 50.max(total / 10);
+        let mut done = 0;
+        while done < total {
+            let n = chunk.min(total - done);
+            fitter.train(n, s.fit.prefit_lr);
+            done += n;
+            progress(Stage::Prefit(done, total));
+        }
+        Ok(Self {
+            norm,
+            fitter,
+            mlp: s.mlp.clone(),
+            seed: s.seed,
+        })
+    }
+
+    /// Registers `source` (user units) onto the model with Φ frozen: the multi-start (or
+    /// `init`, mapping source into target), LM, the robust re-run when needed, the polish and
+    /// the shift search, as [`crate::register()`] minus every Φ refinement. `settings.mlp`,
+    /// `settings.fit` (but for `refine_*`) and `settings.max_target_points` are the model's and
+    /// are not read.
+    pub fn register(
+        &self,
+        source: &[Point3<f64>],
+        init: Option<&nalgebra::Isometry3<f64>>,
+        settings: &RegisterSettings,
+    ) -> Result<Registration, Error> {
+        crate::register::against_model(self, source, init, settings, false, &|_| {})
+    }
+
+    /// [`SdfModel::register`] refining a private copy of Φ in the coarse-to-fine loop with the
+    /// moved source among its queries (paper eq. 18-1), as [`crate::register()`] does; the
+    /// model is not changed.
+    pub fn register_refined(
+        &self,
+        source: &[Point3<f64>],
+        init: Option<&nalgebra::Isometry3<f64>>,
+        settings: &RegisterSettings,
+    ) -> Result<Registration, Error> {
+        crate::register::against_model(self, source, init, settings, true, &|_| {})
+    }
+
+    /// The network Φ (unit frame: see [`SdfModel::normalization`]).
+    pub fn mlp(&self) -> &Mlp {
+        self.fitter.mlp()
+    }
+
+    /// The similarity from the target's frame into Φ's unit frame.
+    pub fn normalization(&self) -> Normalization {
+        self.norm
+    }
+
+    /// The target points Φ was fitted to (subsampled), in the target's units and frame.
+    pub fn target_points(&self) -> Vec<Point3<f64>> {
+        self.fitter
+            .target()
+            .iter()
+            .map(|p| {
+                self.norm
+                    .to_user(&Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            })
+            .collect()
+    }
+
+    /// The seed the model was fitted with.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+
+    /// Φ's settings: the network's, and the fit's.
+    pub fn settings(&self) -> (&MlpSettings, &crate::FitSettings) {
+        (&self.mlp, self.fitter.settings())
+    }
+
+    /// Φ and ∇Φ at `points` (target units and frame): the signed distance in those units and
+    /// its gradient (unit-free), evaluated in parallel.
+    pub fn evaluate(&self, points: &[Point3<f64>]) -> (Vec<f64>, Vec<Vector3<f64>>) {
+        let unit: Vec<[f32; 3]> = points.iter().map(|p| self.norm.to_unit(p)).collect();
+        let (phi, grad) = unit
+            .par_chunks(crate::mlp::BLOCK * 4)
+            .map(|chunk| self.mlp().eval(chunk, true))
+            .reduce(
+                || (Vec::new(), Vec::new()),
+                |mut a, b| {
+                    a.0.extend(b.0);
+                    a.1.extend(b.1);
+                    a
+                },
+            );
+        let phi = phi.iter().map(|&v| v as f64 * self.norm.scale).collect();
+        let grad = grad
+            .iter()
+            .map(|g| Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64))
+            .collect();
+        (phi, grad)
+    }
+
+    /// Signed distance Φ at `points`, in the target's units (positive outside).
+    pub fn distance(&self, points: &[Point3<f64>]) -> Vec<f64> {
+        self.evaluate(points).0
+    }
+
+    /// ∇Φ at `points` (unit-free; about unit length near the surface).
+    pub fn gradient(&self, points: &[Point3<f64>]) -> Vec<Vector3<f64>> {
+        self.evaluate(points).1
+    }
+
+    /// The closest surface point of each of `points`: `p − Φ(p) ∇Φ(p)/‖∇Φ(p)‖` (the projection
+    /// the fit trains, paper eq. 18), target units and frame.
+    pub fn closest_points(&self, points: &[Point3<f64>]) -> Vec<Point3<f64>> {
+        let (phi, grad) = self.evaluate(points);
+        points
+            .iter()
+            .zip(phi.iter().zip(&grad))
+            .map(|(p, (d, g))| p - g.normalize() * *d)
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    fn quick() -> RegisterSettings {
+        let mut s = RegisterSettings::default();
+        s.fit.prefit_steps = 300;
+        s
+    }
+
+    #[test]
+    fn a_sphere_model_measures_distance_in_the_targets_units() {
+        // A sphere of radius 50 around (1000, 0, 0), in millimetres.
+        let centre = Vector3::new(1000.0, 0.0, 0.0);
+        let target: Vec<Point3<f64>> = crate::shapes::fibonacci_sphere(2000)
+            .iter()
+            .map(|d| Point3::from(centre + d * 50.0))
+            .collect();
+        let model = SdfModel::fit(&target, &quick()).unwrap();
+        let probes = [
+            Point3::from(centre + Vector3::new(60.0, 0.0, 0.0)),
+            Point3::from(centre + Vector3::new(0.0, -45.0, 0.0)),
+            Point3::from(centre + Vector3::new(0.0, 30.0, 40.0) * 1.1),
+        ];
+        let d = model.distance(&probes);
+        for (p, d) in probes.iter().zip(&d) {
+            let truth = (p.coords - centre).norm() - 50.0;
+            assert!((d - truth).abs() < 1.5, "{d} vs {truth} mm");
+        }
+        for (p, q) in probes.iter().zip(model.closest_points(&probes)) {
+            let r = (q.coords - centre).norm();
+            assert!((r - 50.0).abs() < 1.5, "closest point at radius {r}");
+            let along = (q - p).normalize().dot(&(centre - p.coords).normalize());
+            assert!(along.abs() > 0.99, "not radial: {along}");
+        }
+        let g = model.gradient(&probes[..1]);
+        assert!((g[0].normalize() - Vector3::x()).norm() < 0.1, "{:?}", g[0]);
+    }
+
+    #[test]
+    fn refined_registration_against_a_model_equals_register() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let target = crate::shapes::blob(800, &mut rng);
+        let m =
+            nalgebra::Isometry3::new(Vector3::new(0.1, -0.2, 0.05), Vector3::new(0.3, 0.2, -0.1));
+        let source: Vec<Point3<f64>> = target.iter().map(|p| m * p).collect();
+        let mut s = quick();
+        s.coarse_to_fine.alternations = 4;
+        let direct = crate::register(&source, &target, None, &s).unwrap();
+        let model = SdfModel::fit(&target, &s).unwrap();
+        let refined = model.register_refined(&source, None, &s).unwrap();
+        assert_eq!(direct.t_target_source, refined.t_target_source);
+        assert_eq!(direct.stages, refined.stages);
+        let frozen = model.register(&source, None, &s).unwrap();
+        let (rot, tr) = crate::se3::pose_errors(&frozen.t_target_source, &m.inverse());
+        assert!(rot < 0.5 && tr < 0.005, "frozen Φ: {rot}°, {tr}");
+    }
+}
