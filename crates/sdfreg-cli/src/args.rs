@@ -15,8 +15,11 @@ pub struct Cli {
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
-    /// Register SOURCE onto TARGET; print the 4×4 transform mapping source into target.
+    /// Register SOURCE onto TARGET (a cloud, or a model from `sdfreg fit`); print the 4×4
+    /// transform mapping source into target.
     Register(RegisterArgs),
+    /// Fit the SDF model of TARGET once and save it (.sdfm), to register many sources against.
+    Fit(FitArgs),
     /// Register a built-in procedural shape against a moved copy and print the errors.
     Demo(DemoArgs),
     /// Evaluate on the paper's ModelNet40 protocols over a folder of shapes.
@@ -129,12 +132,46 @@ impl Common {
     }
 }
 
+/// How input clouds are read.
+#[derive(Args, Debug, Clone)]
+pub struct InputArgs {
+    /// Drop points with a NaN or infinite coordinate (and say how many) instead of refusing the
+    /// file: organised PCL clouds and range scanners mark missing returns that way.
+    #[arg(long)]
+    pub drop_non_finite: bool,
+    /// A PLY input with faces (a mesh) is replaced by this many points sampled uniformly on its
+    /// surface (seeded by --seed) instead of its vertices; clouds are read as they are.
+    #[arg(long, value_name = "N")]
+    pub surface_points: Option<usize>,
+}
+
+#[derive(Args, Debug)]
+pub struct FitArgs {
+    /// Cloud to model (.ply, .pcd, .xyz, .txt, .csv).
+    pub target: PathBuf,
+    /// The model file to write (.sdfm).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Overwrite --output if it exists.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+    #[command(flatten)]
+    pub common: Common,
+}
+
 #[derive(Args, Debug)]
 pub struct RegisterArgs {
     /// Cloud to move (.ply, .pcd, .xyz, .txt, .csv).
     pub source: PathBuf,
-    /// Fixed cloud (.ply, .pcd, .xyz, .txt, .csv).
+    /// Fixed cloud (.ply, .pcd, .xyz, .txt, .csv), or a model written by `sdfreg fit` (.sdfm),
+    /// registered against without fitting (Φ frozen; see --refine).
     pub target: PathBuf,
+    /// With a model as TARGET: refine a private copy of its SDF with the moved source among its
+    /// queries, as registering against the cloud does (slower, the same numbers as the cloud).
+    #[arg(long)]
+    pub refine: bool,
     /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
     #[arg(long, short)]
     pub output: Option<PathBuf>,
@@ -144,14 +181,8 @@ pub struct RegisterArgs {
     /// Initial guess: a text file with a 4×4 matrix (source into target); skips the multi-start.
     #[arg(long)]
     pub init: Option<PathBuf>,
-    /// Drop points with a NaN or infinite coordinate (and say how many) instead of refusing the
-    /// file: organised PCL clouds and range scanners mark missing returns that way.
-    #[arg(long)]
-    pub drop_non_finite: bool,
-    /// A PLY input with faces (a mesh) is replaced by this many points sampled uniformly on its
-    /// surface (seeded by --seed) instead of its vertices; clouds are read as they are.
-    #[arg(long, value_name = "N")]
-    pub surface_points: Option<usize>,
+    #[command(flatten)]
+    pub input: InputArgs,
     /// Overwrite --output / --aligned if they exist.
     #[arg(long)]
     pub force: bool,

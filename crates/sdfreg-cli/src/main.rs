@@ -19,16 +19,17 @@ use sdfreg_core::io::{
 };
 use sdfreg_core::mesh::sample_surface;
 use sdfreg_core::se3::{isometry_from_matrix, pose_errors};
-use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Role, Stage};
+use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Role, SdfModel, Stage};
 
 use output::{matrix_text, registration_json, summary_line};
 
-use args::{Cli, Command, DemoArgs, RegisterArgs};
+use args::{Cli, Command, DemoArgs, FitArgs, InputArgs, RegisterArgs};
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Register(a) => cmd_register(a),
+        Command::Fit(a) => cmd_fit(a),
         Command::Demo(a) => cmd_demo(a),
         Command::Eval(a) => eval::run(a),
     };
@@ -154,57 +155,117 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
     })
 }
 
+/// Reads a cloud as `input` asks: a mesh's surface sampled (seeded by `seed`), or the points
+/// with non-finite ones dropped.
+fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f64>>> {
+    if let Some(n) = input.surface_points {
+        if Format::of(path)? == Format::Ply {
+            let (vertices, triangles) = read_mesh(path)?;
+            if !triangles.is_empty() {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+                let points = sample_surface(&vertices, &triangles, n.max(1), &mut rng)
+                    .with_context(|| format!("{}: the faces have no area", path.display()))?;
+                eprintln!(
+                    "sdfreg: {}: {} points sampled on {} triangles",
+                    path.display(),
+                    points.len(),
+                    triangles.len()
+                );
+                return Ok(points);
+            }
+        }
+    }
+    if !input.drop_non_finite {
+        return Ok(read_point_cloud(path)?);
+    }
+    let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
+    if dropped > 0 {
+        eprintln!(
+            "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+            path.display(),
+            points.len() + dropped
+        );
+    }
+    Ok(points)
+}
+
+/// Whether `path` names a model file (`.sdfm`).
+fn is_model(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("sdfm"))
+}
+
+/// `e` with the file it is about named, when it is about the source or the target cloud.
+fn name_cloud(e: anyhow::Error, source: &Path, target: &Path) -> anyhow::Error {
+    let role = e
+        .downcast_ref::<sdfreg_core::Error>()
+        .and_then(|e| e.role());
+    match role {
+        Some(Role::Source) => e.context(source.display().to_string()),
+        Some(Role::Target) => e.context(target.display().to_string()),
+        None => e,
+    }
+}
+
+fn cmd_fit(a: FitArgs) -> Result<()> {
+    refuse_overwrite(&a.output, &[a.target.as_path()], a.force)?;
+    let target = read_cloud(&a.target, &a.input, a.common.seed)?;
+    let settings = a.common.settings()?;
+    let bar = progress_bar(settings.fit.prefit_steps as u64);
+    bar.set_message("fitting the target SDF");
+    let report = |stage: Stage| {
+        if let Stage::Prefit(done, _) = stage {
+            bar.set_position(done as u64);
+        }
+    };
+    let start = std::time::Instant::now();
+    let model = SdfModel::fit_with_progress(&target, &settings, &report)
+        .map_err(|e| name_cloud(e.into(), &a.target, &a.target))?;
+    let fit_time = start.elapsed();
+    bar.finish_and_clear();
+    model.save(&a.output)?;
+    // How well Φ fits the target points: |Φ| there, in the target's units.
+    let points = model.target_points();
+    let mut d: Vec<f64> = model.distance(&points).iter().map(|v| v.abs()).collect();
+    d.sort_by(f64::total_cmp);
+    let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    eprintln!(
+        "sdfreg: {}: fitted {} target points in {:.0} ms; |Φ| on them: median {:.3e}, RMS {:.3e}, 95 % {:.3e} (target units, extent {:.3e})",
+        a.output.display(),
+        points.len(),
+        fit_time.as_secs_f64() * 1e3,
+        d[d.len() / 2],
+        rms,
+        d[(d.len() * 95 / 100).min(d.len() - 1)],
+        model.normalization().scale,
+    );
+    Ok(())
+}
+
 fn cmd_register(a: RegisterArgs) -> Result<()> {
     let inputs = [a.source.as_path(), a.target.as_path()];
     for out in [&a.output, &a.aligned].into_iter().flatten() {
         refuse_overwrite(out, &inputs, a.force)?;
     }
-    let read = |path: &Path| -> Result<Vec<Point3<f64>>> {
-        if let Some(n) = a.surface_points {
-            if Format::of(path)? == Format::Ply {
-                let (vertices, triangles) = read_mesh(path)?;
-                if !triangles.is_empty() {
-                    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed);
-                    let points = sample_surface(&vertices, &triangles, n.max(1), &mut rng)
-                        .with_context(|| format!("{}: the faces have no area", path.display()))?;
-                    eprintln!(
-                        "sdfreg: {}: {} points sampled on {} triangles",
-                        path.display(),
-                        points.len(),
-                        triangles.len()
-                    );
-                    return Ok(points);
-                }
-            }
-        }
-        if !a.drop_non_finite {
-            return Ok(read_point_cloud(path)?);
-        }
-        let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
-        if dropped > 0 {
-            eprintln!(
-                "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
-                path.display(),
-                points.len() + dropped
-            );
-        }
-        Ok(points)
-    };
-    let source = read(&a.source)?;
-    let target = read(&a.target)?;
+    let source = read_cloud(&a.source, &a.input, a.common.seed)?;
     let init = a.init.as_deref().map(read_matrix).transpose()?;
     let settings = a.common.settings()?;
-    let r = register_with_bar(&source, &target, init.as_ref(), &settings).map_err(|e| {
-        // Name the file a cloud error is about.
-        let role = e
-            .downcast_ref::<sdfreg_core::Error>()
-            .and_then(|e| e.role());
-        match role {
-            Some(Role::Source) => e.context(a.source.display().to_string()),
-            Some(Role::Target) => e.context(a.target.display().to_string()),
-            None => e,
+    let r = if is_model(&a.target) {
+        let model = SdfModel::load(&a.target)?;
+        if a.refine {
+            model.register_refined(&source, init.as_ref(), &settings)
+        } else {
+            model.register(&source, init.as_ref(), &settings)
         }
-    })?;
+        .map_err(anyhow::Error::from)
+    } else {
+        if a.refine {
+            bail!("--refine: only with a model (.sdfm) as TARGET");
+        }
+        let target = read_cloud(&a.target, &a.input, a.common.seed)?;
+        register_with_bar(&source, &target, init.as_ref(), &settings)
+    }
+    .map_err(|e| name_cloud(e, &a.source, &a.target))?;
     let m = r.matrix();
     match &a.output {
         Some(path)

@@ -12,6 +12,7 @@
 
 mod convert;
 mod error;
+mod model;
 mod registration;
 mod settings;
 
@@ -21,6 +22,7 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use sdfreg_core::RegisterSettings;
 
+use model::PySdfModel;
 use registration::{PyFreeMotion, PyRegistration};
 use settings::{
     IntoSetting, PyCoarseToFineSettings, PyFitSettings, PyLmSettings, PyMlpSettings,
@@ -41,9 +43,14 @@ use settings::{
 ///     source: (N, 3) points to move: a float32 or float64 array in any memory layout, an
 ///         Open3D ``PointCloud`` (anything with a ``.points`` that numpy reads), or anything
 ///         ``numpy.asarray`` turns into one.
-///     target: (M, 3) points that stay fixed, same units as ``source``.
+///     target: (M, 3) points that stay fixed, same units as ``source``; or an
+///         :class:`SdfModel` of them (:func:`fit`), registered against without fitting.
 ///     init: Optional 4×4 rigid initial guess mapping source into target; replaces the
 ///         multi-start.
+///     refine: With an :class:`SdfModel` target: refine a private copy of Φ with the moved
+///         source among its queries, as registering against the cloud does (slower; the same
+///         numbers as the cloud). None: False for a model (Φ frozen); a cloud is always
+///         refined.
 ///     preset: ``"default"``, or ``"scans"`` for scans known to overlap only in part (the
 ///         robust kernel from the start, multi-start tie 0.05). The arguments below override
 ///         it; None keeps the preset's value.
@@ -75,13 +82,14 @@ use settings::{
 ///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
 ///         setting is out of range.
 #[pyfunction]
-#[pyo3(signature = (source, target, *, init = None, preset = None, robust = None, seed = 0, threads = 0, max_source_points = None, max_target_points = None, inlier_distance = None, free_motion_ratio = None, mlp = None, fit = None, multistart = None, coarse_to_fine = None, lm = None, polish = None, shift_search = None))]
+#[pyo3(signature = (source, target, *, init = None, refine = None, preset = None, robust = None, seed = 0, threads = 0, max_source_points = None, max_target_points = None, inlier_distance = None, free_motion_ratio = None, mlp = None, fit = None, multistart = None, coarse_to_fine = None, lm = None, polish = None, shift_search = None))]
 #[allow(clippy::too_many_arguments)]
 fn register(
     py: Python<'_>,
     source: &Bound<'_, PyAny>,
     target: &Bound<'_, PyAny>,
     init: Option<&Bound<'_, PyAny>>,
+    refine: Option<bool>,
     preset: Option<&str>,
     robust: Option<&Bound<'_, PyAny>>,
     seed: i64,
@@ -99,7 +107,16 @@ fn register(
     shift_search: Option<PyRef<'_, PyShiftSearchSettings>>,
 ) -> PyResult<PyRegistration> {
     let source = convert::points(source, "source")?;
-    let target = convert::points(target, "target")?;
+    let target = match target.cast::<PySdfModel>() {
+        Ok(model) => Target::Model(model.get().0.clone(), refine.unwrap_or(false)),
+        Err(_) if refine == Some(false) => {
+            return Err(error::argument(
+                "refine",
+                "False needs an SdfModel target (a cloud is fitted and refined)",
+            ));
+        }
+        Err(_) => Target::Cloud(convert::points(target, "target")?),
+    };
     let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
     let preset = preset.unwrap_or("default");
     let mut s = RegisterSettings::preset(preset).ok_or_else(|| {
@@ -136,9 +153,20 @@ fn register(
         .as_ref()
         .map_or(s.shift_search, |g| g.0.clone());
     let result = py
-        .detach(|| sdfreg_core::register(&source, &target, init.as_ref(), &s))
+        .detach(|| match &target {
+            Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),
+            Target::Model(model, false) => model.register(&source, init.as_ref(), &s),
+            Target::Model(model, true) => model.register_refined(&source, init.as_ref(), &s),
+        })
         .map_err(error::registration)?;
     Ok(PyRegistration(result))
+}
+
+/// What `register` registers against: the target's points, or a model of them (and whether
+/// to refine a copy of its Φ).
+enum Target {
+    Cloud(Vec<nalgebra::Point3<f64>>),
+    Model(std::sync::Arc<sdfreg_core::SdfModel>, bool),
 }
 
 /// The core's defaults of every settings group, as nested dicts (for tests).
@@ -214,6 +242,10 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(model::fit, m)?)?;
+    m.add_function(wrap_pyfunction!(model::load_model, m)?)?;
+    m.add_function(wrap_pyfunction!(model::_model_from_bytes, m)?)?;
+    m.add_class::<PySdfModel>()?;
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyFreeMotion>()?;
     m.add_class::<PyMlpSettings>()?;

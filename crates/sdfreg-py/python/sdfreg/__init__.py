@@ -4,7 +4,9 @@
 :class:`Registration` whose ``transformation`` (4×4) maps source coordinates into the target
 frame. Clouds are (N, 3) arrays of float32 or float64 in any units, or Open3D point clouds.
 Tuning goes in settings objects, one per stage: ``register(s, t, lm=LmSettings(max_tries=10))``;
-``preset="scans"`` suits scans that overlap only in part.
+``preset="scans"`` suits scans that overlap only in part. ``fit(target)`` fits the target's
+SDF once; ``register(source, model)`` then registers without fitting, and the model saves,
+loads and pickles.
 """
 
 from ._sdfreg import (
@@ -17,8 +19,11 @@ from ._sdfreg import (
     PolishSettings,
     Registration,
     RobustSettings,
+    SdfModel,
     ShiftSearchSettings,
     __version__,
+    fit,
+    load_model,
     read_point_cloud,
     register,
     write_point_cloud,
@@ -34,8 +39,11 @@ __all__ = [
     "PolishSettings",
     "Registration",
     "RobustSettings",
+    "SdfModel",
     "ShiftSearchSettings",
     "__version__",
+    "fit",
+    "load_model",
     "read_point_cloud",
     "register",
     "write_point_cloud",

@@ -17,8 +17,12 @@ __all__ = [
     "PolishSettings",
     "Registration",
     "RobustSettings",
+    "SdfModel",
     "ShiftSearchSettings",
     "__version__",
+    "_model_from_bytes",
+    "fit",
+    "load_model",
     "_core_defaults",
     "read_point_cloud",
     "register",
@@ -347,9 +351,10 @@ class Registration:
 
 def register(
     source: Union[npt.ArrayLike, _HasPoints],
-    target: Union[npt.ArrayLike, _HasPoints],
+    target: Union[npt.ArrayLike, _HasPoints, SdfModel],
     *,
     init: Optional[npt.ArrayLike] = None,
+    refine: Optional[bool] = None,
     preset: Optional[str] = None,
     robust: Union[str, RobustSettings, None] = None,
     seed: int = 0,
@@ -379,9 +384,14 @@ def register(
         source: (N, 3) points to move: a float32 or float64 array in any memory layout, an
             Open3D ``PointCloud`` (anything with a ``.points`` that numpy reads), or anything
             ``numpy.asarray`` turns into one.
-        target: (M, 3) points that stay fixed, same units as ``source``.
+        target: (M, 3) points that stay fixed, same units as ``source``; or an
+            :class:`SdfModel` of them (:func:`fit`), registered against without fitting.
         init: Optional 4×4 rigid initial guess mapping source into target; replaces the
             multi-start.
+        refine: With an :class:`SdfModel` target: refine a private copy of Φ with the moved
+            source among its queries, as registering against the cloud does (slower; the same
+            numbers as the cloud). None: False for a model (Φ frozen); a cloud is always
+            refined.
         preset: ``"default"``, or ``"scans"`` for scans known to overlap only in part (the
             robust kernel from the start, multi-start tie 0.05). The arguments below override
             it; None keeps the preset's value.
@@ -413,6 +423,101 @@ def register(
             fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
             setting is out of range.
     """
+
+@final
+class SdfModel:
+    """A target fitted once (see :func:`fit`). Immutable; pickles (through its ``.sdfm``
+    bytes) to multiprocessing, Dask and Ray workers."""
+
+    def register(
+        self,
+        source: Union[npt.ArrayLike, _HasPoints],
+        *,
+        init: Optional[npt.ArrayLike] = None,
+        refine: Optional[bool] = None,
+        preset: Optional[str] = None,
+        robust: Union[str, RobustSettings, None] = None,
+        seed: int = 0,
+        threads: int = 0,
+        max_source_points: Optional[int] = None,
+        max_target_points: Optional[int] = None,
+        inlier_distance: Optional[float] = None,
+        free_motion_ratio: Optional[float] = None,
+        mlp: Optional[MlpSettings] = None,
+        fit: Optional[FitSettings] = None,
+        multistart: Optional[MultistartSettings] = None,
+        coarse_to_fine: Optional[CoarseToFineSettings] = None,
+        lm: Optional[LmSettings] = None,
+        polish: Optional[PolishSettings] = None,
+        shift_search: Optional[ShiftSearchSettings] = None,
+    ) -> Registration:
+        """Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
+        (Φ frozen unless ``refine=True``)."""
+    def distance(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """Signed distance Φ at ``points`` ((N, 3), the target's units and frame), positive
+        outside, as an (N,) float64 array."""
+    def gradient(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """∇Φ at ``points`` as an (N, 3) float64 array (about unit length near the surface)."""
+    def closest_points(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The closest surface point of each of ``points``, ``p − Φ ∇Φ/‖∇Φ‖``, as (N, 3)."""
+    @property
+    def target_points(self) -> npt.NDArray[np.float64]:
+        """The target points Φ was fitted to (subsampled), (M, 3), the target's units and frame."""
+    @property
+    def seed(self) -> int:
+        """The seed the model was fitted with."""
+    def save(self, path: _PathLike) -> None:
+        """Writes the model to ``path`` (``.sdfm``: a safetensors file, readable without sdfreg);
+        an existing file is replaced.
+
+        Raises:
+            OSError: the file cannot be written.
+        """
+    def to_bytes(self) -> bytes:
+        """The ``.sdfm`` file's bytes."""
+    def __reduce__(self) -> Any: ...
+
+def fit(
+    target: Union[npt.ArrayLike, _HasPoints],
+    *,
+    seed: int = 0,
+    threads: int = 0,
+    max_target_points: Optional[int] = None,
+    mlp: Optional[MlpSettings] = None,
+    fit: Optional[FitSettings] = None,
+) -> SdfModel:
+    """Fits the SDF model of ``target`` once, to register many sources against it.
+
+    Runs the first stages of :func:`register` on the target alone: the normalisation and the
+    pre-fit of Φ. ``register(source, model)`` (or ``model.register(source)``) then skips them.
+
+    Args:
+        target: (M, 3) points (array, Open3D ``PointCloud``, …), any units.
+        seed: Seed of every random choice; equal seeds give identical models.
+        threads: Worker threads; 0 = one per core. The model does not depend on it.
+        max_target_points: Target points used at most (larger clouds are subsampled, seeded).
+        mlp: The network (:class:`MlpSettings`).
+        fit: The fit (:class:`FitSettings`).
+
+    Returns:
+        The :class:`SdfModel`.
+
+    Raises:
+        ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
+            fewer than 10 points or no extent; a setting is out of range.
+    """
+
+def load_model(path: _PathLike) -> SdfModel:
+    """Reads a model written by :meth:`SdfModel.save` (``.sdfm``).
+
+    Raises:
+        OSError: the file cannot be read, or it is not an sdfreg model: truncated, corrupted
+            (checksum), of another program, or of a newer format version; the message names
+            the file and what is wrong.
+    """
+
+def _model_from_bytes(data: bytes) -> SdfModel:
+    """A model from ``.sdfm`` bytes (unpickling)."""
 
 def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.NDArray[np.float64]:
     """Reads a point cloud as an (N, 3) float64 array.

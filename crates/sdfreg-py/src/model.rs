@@ -1,0 +1,198 @@
+//! `sdfreg.SdfModel`: the fitted target (the core's `SdfModel`), `sdfreg.fit` and
+//! `sdfreg.load_model`. A model is immutable and shared (`Arc`): registering against it from
+//! several Python threads at once is safe, and every call that computes releases the GIL.
+//! Pickling goes through the `.sdfm` bytes, so a model travels to multiprocessing, Dask and Ray
+//! workers and comes back bit-identical.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use numpy::{PyArray1, PyArray2};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PyTuple};
+use sdfreg_core::{RegisterSettings, SdfModel};
+
+use crate::convert;
+use crate::error;
+use crate::settings::{IntoSetting, PyFitSettings, PyMlpSettings};
+
+/// A target fitted once (see :func:`fit`).
+#[pyclass(module = "sdfreg", name = "SdfModel", frozen)]
+pub struct PySdfModel(pub Arc<SdfModel>);
+
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Fits the SDF model of ``target`` once, to register many sources against it.
+///
+/// Runs the first stages of :func:`register` on the target alone: the normalisation and the
+/// pre-fit of Φ. ``register(source, model)`` (or ``model.register(source)``) then skips them.
+///
+/// Args:
+///     target: (M, 3) points (array, Open3D ``PointCloud``, …), any units.
+///     seed: Seed of every random choice; equal seeds give identical models.
+///     threads: Worker threads; 0 = one per core. The model does not depend on it.
+///     max_target_points: Target points used at most (larger clouds are subsampled, seeded).
+///     mlp: The network (:class:`MlpSettings`).
+///     fit: The fit (:class:`FitSettings`).
+///
+/// Returns:
+///     The :class:`SdfModel`.
+///
+/// Raises:
+///     ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
+///         fewer than 10 points or no extent; a setting is out of range.
+#[pyfunction]
+#[pyo3(signature = (target, *, seed = 0, threads = 0, max_target_points = None, mlp = None, fit = None))]
+pub fn fit(
+    py: Python<'_>,
+    target: &Bound<'_, PyAny>,
+    seed: i64,
+    threads: i64,
+    max_target_points: Option<i64>,
+    mlp: Option<PyRef<'_, PyMlpSettings>>,
+    fit: Option<PyRef<'_, PyFitSettings>>,
+) -> PyResult<PySdfModel> {
+    let target = convert::points(target, "target")?;
+    let mut s = RegisterSettings {
+        seed: seed.into_setting("seed")?,
+        threads: threads.into_setting("threads")?,
+        ..Default::default()
+    };
+    if let Some(n) = max_target_points {
+        s.max_target_points = n.into_setting("max_target_points")?;
+    }
+    s.mlp = mlp.as_ref().map_or(s.mlp, |g| g.0.clone());
+    s.fit = fit.as_ref().map_or(s.fit, |g| g.0.clone());
+    let model = py
+        .detach(|| SdfModel::fit(&target, &s))
+        .map_err(error::registration)?;
+    Ok(PySdfModel(Arc::new(model)))
+}
+
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Reads a model written by :meth:`SdfModel.save` (``.sdfm``).
+///
+/// Raises:
+///     OSError: the file cannot be read, or it is not an sdfreg model: truncated, corrupted
+///         (checksum), of another program, or of a newer format version; the message names
+///         the file and what is wrong.
+#[pyfunction]
+pub fn load_model(py: Python<'_>, path: PathBuf) -> PyResult<PySdfModel> {
+    let model = py.detach(|| SdfModel::load(&path)).map_err(error::io)?;
+    Ok(PySdfModel(Arc::new(model)))
+}
+
+/// A model from `.sdfm` bytes (unpickling).
+#[pyfunction]
+pub fn _model_from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<PySdfModel> {
+    let bytes = data.to_vec();
+    let model = py
+        .detach(|| SdfModel::from_bytes(&bytes, std::path::Path::new("<pickle>")))
+        .map_err(error::io)?;
+    Ok(PySdfModel(Arc::new(model)))
+}
+
+#[pymethods]
+impl PySdfModel {
+    /// Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
+    /// (Φ frozen unless ``refine=True``).
+    #[pyo3(signature = (source, **kwargs))]
+    fn register<'py>(
+        slf: &Bound<'py, Self>,
+        source: &Bound<'py, PyAny>,
+        kwargs: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        let py = slf.py();
+        let register = py.import("sdfreg._sdfreg")?.getattr("register")?;
+        register.call((source, slf), kwargs)
+    }
+
+    /// Signed distance Φ at ``points`` ((N, 3), the target's units and frame), positive
+    /// outside, as an (N,) float64 array.
+    fn distance<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let pts = convert::finite_points(points, "points")?;
+        let model = self.0.clone();
+        let d = py.detach(move || model.distance(&pts));
+        Ok(PyArray1::from_vec(py, d))
+    }
+
+    /// ∇Φ at ``points`` as an (N, 3) float64 array (about unit length near the surface).
+    fn gradient<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = convert::finite_points(points, "points")?;
+        let model = self.0.clone();
+        let g = py.detach(move || model.gradient(&pts));
+        let as_points: Vec<nalgebra::Point3<f64>> =
+            g.into_iter().map(nalgebra::Point3::from).collect();
+        Ok(convert::points_to_array(py, &as_points))
+    }
+
+    /// The closest surface point of each of ``points``, ``p − Φ ∇Φ/‖∇Φ‖``, as (N, 3).
+    fn closest_points<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let pts = convert::finite_points(points, "points")?;
+        let model = self.0.clone();
+        let q = py.detach(move || model.closest_points(&pts));
+        Ok(convert::points_to_array(py, &q))
+    }
+
+    /// The target points Φ was fitted to (subsampled), (M, 3), the target's units and frame.
+    #[getter]
+    fn target_points<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        convert::points_to_array(py, &self.0.target_points())
+    }
+
+    /// The seed the model was fitted with.
+    #[getter]
+    fn seed(&self) -> u64 {
+        self.0.seed()
+    }
+
+    /// Writes the model to ``path`` (``.sdfm``: a safetensors file, readable without sdfreg);
+    /// an existing file is replaced.
+    ///
+    /// Raises:
+    ///     OSError: the file cannot be written.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let model = self.0.clone();
+        py.detach(move || model.save(&path)).map_err(error::io)
+    }
+
+    /// The ``.sdfm`` file's bytes.
+    fn to_bytes<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        let model = self.0.clone();
+        let bytes = py.detach(move || model.to_bytes());
+        PyBytes::new(py, &bytes)
+    }
+
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py.import("sdfreg._sdfreg")?.getattr("_model_from_bytes")?;
+        let args = PyTuple::new(py, [self.to_bytes(py)])?;
+        PyTuple::new(py, [restore.into_any(), args.into_any()])
+    }
+
+    fn __repr__(&self) -> String {
+        let (mlp, _) = self.0.settings();
+        let n = self.0.normalization();
+        format!(
+            "SdfModel({} target points, extent {:.6}, centre [{:.6}, {:.6}, {:.6}], MLP {}×{}, seed {})",
+            self.0.target_points().len(),
+            n.scale,
+            n.centre.x,
+            n.centre.y,
+            n.centre.z,
+            mlp.width,
+            mlp.depth,
+            self.0.seed()
+        )
+    }
+}

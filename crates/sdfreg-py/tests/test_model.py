@@ -1,0 +1,125 @@
+"""The fitted target as a model: fit once, register many, query, save, load and pickle."""
+
+from __future__ import annotations
+
+import pickle
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sdfreg
+from conftest import QUICK, blob, paper_pair, pose_errors
+
+FIT = sdfreg.FitSettings(prefit_steps=150, refine_steps=20)
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return paper_pair(21)
+
+
+@pytest.fixture(scope="module")
+def model(pair) -> sdfreg.SdfModel:
+    _, target, _ = pair
+    return sdfreg.fit(target, fit=FIT)
+
+
+def test_registering_against_a_model_is_accurate_and_refining_equals_the_cloud(pair, model) -> None:
+    source, target, truth = pair
+    frozen = sdfreg.register(source, model, **QUICK)
+    rot, trans = pose_errors(frozen.transformation, truth)
+    assert rot < 1.0 and trans < 0.01, (rot, trans)
+    np.testing.assert_array_equal(model.register(source, **QUICK).transformation, frozen.transformation)
+    refined = sdfreg.register(source, model, refine=True, **QUICK)
+    direct = sdfreg.register(source, target, **QUICK)
+    np.testing.assert_array_equal(refined.transformation, direct.transformation)
+    assert refined.stages == direct.stages
+    with pytest.raises(ValueError, match="refine: False needs an SdfModel target"):
+        sdfreg.register(source, target, refine=False, **QUICK)
+
+
+def test_queries_are_in_the_targets_units(model) -> None:
+    pts = model.target_points
+    assert pts.shape[1] == 3 and len(pts) == 1024
+    d = model.distance(pts)
+    assert d.shape == (len(pts),) and np.median(np.abs(d)) < 0.01
+    # 2 % of the extent out along ∇Φ: Φ grows by that much (an SDF's gradient has unit length).
+    off = pts + 0.02 * model.gradient(pts)
+    err = np.abs(model.distance(off) - (d + 0.02))
+    assert np.median(err) < 0.002 and np.quantile(err, 0.95) < 0.006, (np.median(err), np.quantile(err, 0.95))
+    back = model.closest_points(off)
+    assert np.median(np.linalg.norm(back - pts, axis=1)) < 0.01
+    with pytest.raises(ValueError, match="points: row 1 has a non-finite coordinate"):
+        model.distance(np.array([[0.0, 0, 0], [np.nan, 0, 0]]))
+
+
+def test_save_load_and_pickle_are_bit_identical(pair, model, tmp_path: Path) -> None:
+    source, _, _ = pair
+    path = tmp_path / "m.sdfm"
+    model.save(path)
+    assert path.read_bytes() == model.to_bytes()
+    loaded = sdfreg.load_model(path)
+    unpickled = pickle.loads(pickle.dumps(model))
+    base = sdfreg.register(source, model, **QUICK)
+    for other in (loaded, unpickled):
+        r = sdfreg.register(source, other, **QUICK)
+        np.testing.assert_array_equal(r.transformation, base.transformation)
+        assert r.stages == base.stages
+    assert repr(loaded).startswith("SdfModel(1024 target points")
+
+
+def test_the_file_opens_without_sdfreg(model, tmp_path: Path) -> None:
+    """The layout the docs state: a safetensors file, read here by hand with numpy."""
+    import json
+    import struct
+
+    data = model.to_bytes()
+    (n,) = struct.unpack("<Q", data[:8])
+    header = json.loads(data[8 : 8 + n])
+    meta = json.loads(header["__metadata__"]["sdfreg"])
+    assert meta["format"] == "sdfreg-model" and meta["version"] == 1
+    info = header["target.points"]
+    start, end = info["data_offsets"]
+    pts = np.frombuffer(data[8 + n + start : 8 + n + end], "<f4").reshape(info["shape"])
+    (scale,) = np.frombuffer(data[8 + n + header["frame.scale"]["data_offsets"][0] :][:8], "<f8")
+    c0 = header["frame.centre"]["data_offsets"][0]
+    centre = np.frombuffer(data[8 + n + c0 : 8 + n + c0 + 24], "<f8")
+    np.testing.assert_allclose(pts * scale + centre, model.target_points, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda b: b[: len(b) // 2], "truncated"),
+        (lambda b: b[:-1] + bytes([b[-1] ^ 1]), "corrupted: the checksum does not match"),
+        (lambda b: b"ply\nformat ascii 1.0\n", "not a model file"),
+        (lambda b: b"", "truncated"),
+    ],
+)
+def test_bad_model_files_raise_oserror_naming_the_file(model, tmp_path: Path, make, message) -> None:
+    path = tmp_path / "bad.sdfm"
+    path.write_bytes(make(model.to_bytes()))
+    with pytest.raises(OSError, match=f"bad.sdfm: .*{message}"):
+        sdfreg.load_model(path)
+    with pytest.raises(FileNotFoundError):
+        sdfreg.load_model(tmp_path / "missing.sdfm")
+
+
+def test_threads_share_one_model(pair, model) -> None:
+    source, _, _ = pair
+    rng = np.random.default_rng(2)
+    sources = [source + rng.normal(0, 1e-3, source.shape) for _ in range(4)]
+    alone = [sdfreg.register(s, model, **QUICK).transformation for s in sources]
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(lambda s: sdfreg.register(s, model, **QUICK).transformation, sources))
+    for a, b in zip(alone, together):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_fit_refuses_bad_targets() -> None:
+    with pytest.raises(ValueError, match="target cloud has 5 points"):
+        sdfreg.fit(blob(5, np.random.default_rng(0)))
+    with pytest.raises(ValueError, match="seed: must be an integer ≥ 0"):
+        sdfreg.fit(blob(50, np.random.default_rng(0)), seed=-1)
