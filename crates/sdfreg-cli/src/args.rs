@@ -20,6 +20,11 @@ pub enum Command {
     Register(RegisterArgs),
     /// Fit the SDF model of TARGET once and save it (.sdfm), to register many sources against.
     Fit(FitArgs),
+    /// Write the zero level set of a model's SDF as a triangle mesh (.ply), to look at it.
+    Mesh(MeshArgs),
+    /// Register a sequence of frames against a model, each from the pose predicted by the
+    /// previous ones; one JSON line per frame.
+    Track(TrackArgs),
     /// Register a built-in procedural shape against a moved copy and print the errors.
     Demo(DemoArgs),
     /// Evaluate on the paper's ModelNet40 protocols over a folder of shapes.
@@ -40,10 +45,12 @@ pub enum RobustFlag {
 /// Settings shared by every command that registers.
 #[derive(Args, Debug, Clone)]
 pub struct Common {
-    /// Start from a named preset: `default`, or `scans` for scans known to overlap only in part
-    /// (robust kernel from the start, multi-start tie 0.05). Other flags override it.
-    #[arg(long, default_value = "default", value_parser = clap::builder::PossibleValuesParser::new(RegisterSettings::PRESETS))]
-    pub preset: String,
+    /// Start from a named preset: `default`, `scans` for scans known to overlap only in part
+    /// (robust kernel from the start, multi-start tie 0.05), or `tracking` (warm-started frames:
+    /// no multi-start, a few LM steps, a short polish; `track`'s default). Other flags override
+    /// it.
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(RegisterSettings::PRESETS))]
+    pub preset: Option<String>,
     /// Seed of every random choice (equal seeds give identical results).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -95,10 +102,17 @@ pub struct Common {
 }
 
 impl Common {
-    /// The settings these flags ask for: the preset, then each flag given.
+    /// The settings these flags ask for: the preset (`default` when none is named), then each
+    /// flag given.
     pub fn settings(&self) -> anyhow::Result<RegisterSettings> {
-        let mut s = RegisterSettings::preset(&self.preset)
-            .ok_or_else(|| anyhow::anyhow!("--preset: unknown preset {:?}", self.preset))?;
+        self.settings_from("default")
+    }
+
+    /// [`Common::settings`] with `preset` when no preset is named.
+    pub fn settings_from(&self, preset: &str) -> anyhow::Result<RegisterSettings> {
+        let name = self.preset.as_deref().unwrap_or(preset);
+        let mut s = RegisterSettings::preset(name)
+            .ok_or_else(|| anyhow::anyhow!("--preset: unknown preset {name:?}"))?;
         s.seed = self.seed;
         s.threads = self.threads;
         s.multistart.enabled &= !self.no_multistart;
@@ -152,6 +166,45 @@ pub struct FitArgs {
     /// The model file to write (.sdfm).
     #[arg(long, short)]
     pub output: PathBuf,
+    /// Overwrite --output if it exists.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct MeshArgs {
+    /// The model (.sdfm, from `sdfreg fit`).
+    pub model: PathBuf,
+    /// The mesh file to write (.ply).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Grid cells along the target's largest side (4 to 1024).
+    #[arg(long, default_value_t = 128)]
+    pub resolution: usize,
+    /// Overwrite --output if it exists.
+    #[arg(long)]
+    pub force: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct TrackArgs {
+    /// The model (.sdfm, from `sdfreg fit`).
+    pub model: PathBuf,
+    /// The frames, in order (.ply, .pcd, .xyz, .txt, .csv).
+    #[arg(required = true)]
+    pub frames: Vec<PathBuf>,
+    /// Where to write one JSON line per frame (`file`, `transformation` mapping the frame into
+    /// the model's frame, `fitness`, `converged`, `time_ms`; or `file` and `error`).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// The first frame's pose: a text file with a 4×4 matrix (frame into model) [default:
+    /// identity].
+    #[arg(long)]
+    pub init: Option<PathBuf>,
     /// Overwrite --output if it exists.
     #[arg(long)]
     pub force: bool,
@@ -225,6 +278,11 @@ pub struct EvalArgs {
     /// Only make (and write) the pairs; register nothing.
     #[arg(long, requires = "write_pairs")]
     pub pairs_only: bool,
+    /// Fit each pair's target once as a model (`sdfreg fit`) and register the source against it
+    /// with Φ frozen; the table's times are then the registrations alone, and each protocol's
+    /// median fit time is printed below its row.
+    #[arg(long)]
+    pub via_model: bool,
     /// Overwrite --json or --write-pairs output if it exists.
     #[arg(long)]
     pub force: bool,

@@ -6,7 +6,7 @@ mod eval;
 mod output;
 
 use std::io::IsTerminal;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
@@ -15,7 +15,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use sdfreg_core::io::{
-    read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_point_cloud, Format,
+    read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_mesh,
+    write_point_cloud, Format,
 };
 use sdfreg_core::mesh::sample_surface;
 use sdfreg_core::se3::{isometry_from_matrix, pose_errors};
@@ -23,13 +24,15 @@ use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Role, 
 
 use output::{matrix_text, registration_json, summary_line};
 
-use args::{Cli, Command, DemoArgs, FitArgs, InputArgs, RegisterArgs};
+use args::{Cli, Command, DemoArgs, FitArgs, InputArgs, MeshArgs, RegisterArgs, TrackArgs};
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Register(a) => cmd_register(a),
         Command::Fit(a) => cmd_fit(a),
+        Command::Mesh(a) => cmd_mesh(a),
+        Command::Track(a) => cmd_track(a),
         Command::Demo(a) => cmd_demo(a),
         Command::Eval(a) => eval::run(a),
     };
@@ -239,6 +242,74 @@ fn cmd_fit(a: FitArgs) -> Result<()> {
         d[(d.len() * 95 / 100).min(d.len() - 1)],
         model.normalization().scale,
     );
+    Ok(())
+}
+
+fn cmd_mesh(a: MeshArgs) -> Result<()> {
+    refuse_overwrite(&a.output, &[a.model.as_path()], a.force)?;
+    let model = SdfModel::load(&a.model)?;
+    let (vertices, triangles) = model.mesh(a.resolution)?;
+    write_mesh(&a.output, &vertices, &triangles)?;
+    eprintln!(
+        "sdfreg: {}: {} vertices, {} triangles (resolution {})",
+        a.output.display(),
+        vertices.len(),
+        triangles.len(),
+        a.resolution
+    );
+    Ok(())
+}
+
+fn cmd_track(a: TrackArgs) -> Result<()> {
+    let mut inputs: Vec<&Path> = a.frames.iter().map(PathBuf::as_path).collect();
+    inputs.push(&a.model);
+    refuse_overwrite(&a.output, &inputs, a.force)?;
+    let model = SdfModel::load(&a.model)?;
+    let init = match &a.init {
+        Some(path) => read_matrix(path)?,
+        None => Isometry3::identity(),
+    };
+    let settings = a.common.settings_from("tracking")?;
+    // A frame that cannot be read is reported in its line, like one that cannot be registered.
+    let frames: Vec<Result<Vec<Point3<f64>>>> = a
+        .frames
+        .iter()
+        .map(|f| read_cloud(f, &a.input, a.common.seed))
+        .collect();
+    let empty = Vec::new();
+    let clouds: Vec<&[Point3<f64>]> = frames
+        .iter()
+        .map(|f| f.as_ref().map_or(empty.as_slice(), |c| c.as_slice()))
+        .collect();
+    let results = model.track(clouds, &init, &settings)?;
+    let mut out = String::new();
+    let mut failed = 0;
+    for ((path, frame), r) in a.frames.iter().zip(&frames).zip(results) {
+        let line = match (frame, r) {
+            (Ok(_), Ok(r)) => serde_json::json!({
+                "file": path,
+                "transformation": output::matrix_rows(&r.matrix()),
+                "fitness": r.fitness,
+                "converged": r.converged,
+                "time_ms": r.time.as_secs_f64() * 1e3,
+            }),
+            (Err(e), _) => serde_json::json!({"file": path, "error": format!("{e:#}")}),
+            (Ok(_), Err(e)) => serde_json::json!({
+                "file": path,
+                "error": format!("{}: {e}", path.display()),
+            }),
+        };
+        failed += usize::from(line.get("error").is_some());
+        out += &(line.to_string() + "\n");
+    }
+    std::fs::write(&a.output, out).with_context(|| format!("{}", a.output.display()))?;
+    if failed > 0 {
+        bail!(
+            "{failed} of {} frames failed (see {})",
+            a.frames.len(),
+            a.output.display()
+        );
+    }
     Ok(())
 }
 

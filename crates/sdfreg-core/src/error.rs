@@ -119,6 +119,12 @@ pub enum IoError {
         /// What is wrong.
         reason: String,
     },
+    /// A mesh is asked for in a format that holds no faces.
+    #[error("{path}: meshes are written as .ply")]
+    MeshFormat {
+        /// The file.
+        path: PathBuf,
+    },
     /// The file holds no points.
     #[error("{path}: no points found")]
     Empty {

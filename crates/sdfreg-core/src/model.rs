@@ -118,6 +118,76 @@ impl SdfModel {
         crate::register::against_model(self, source, init, settings, true, &|_| {})
     }
 
+    /// Registers a sequence of `frames` (user units), the first from `init` (maps the frame into
+    /// the target), each next one from the previous frame's pose, against the frozen Φ with
+    /// `settings` — usually [`RegisterSettings::tracking`]: no multi-start, a few LM steps, a
+    /// short polish. The frames run in one worker pool. A frame that fails (too few points,
+    /// NaN) gives its error in its place and the next starts from the last good pose.
+    pub fn track<'a>(
+        &self,
+        frames: impl IntoIterator<Item = &'a [Point3<f64>]> + Send,
+        init: &nalgebra::Isometry3<f64>,
+        settings: &RegisterSettings,
+    ) -> Result<Vec<Result<Registration, Error>>, Error> {
+        crate::register::track(self, frames, init, settings)
+    }
+
+    /// Φ's zero level set as a triangle mesh, for looking at what was fitted: Φ sampled on a
+    /// grid of `resolution` cells along the target's largest side (over the target points'
+    /// bounding box and a margin of 5 % and 2 cells), then Surface Nets (`fast-surface-nets`).
+    /// Vertices in the target's units and frame, triangles as vertex indices (outward normals by
+    /// the right-hand rule). `resolution` from 4 to 1024.
+    pub fn mesh(&self, resolution: usize) -> Result<crate::io::MeshData, Error> {
+        use fast_surface_nets::ndshape::{RuntimeShape, Shape};
+        use fast_surface_nets::{surface_nets, SurfaceNetsBuffer};
+        if !(4..=1024).contains(&resolution) {
+            return Err(Error::InvalidSetting {
+                name: "resolution",
+                reason: format!("must be from 4 to 1024 cells, got {resolution}"),
+            });
+        }
+        let cell = 1.0 / resolution as f64;
+        let target = self.fitter.target();
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for p in target {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k] as f64);
+                hi[k] = hi[k].max(p[k] as f64);
+            }
+        }
+        let margin = 0.05 + 2.0 * cell;
+        let origin = lo.map(|v| v - margin);
+        let dims: [u32; 3] =
+            std::array::from_fn(|k| ((hi[k] - lo[k] + 2.0 * margin) / cell).ceil() as u32 + 1);
+        let shape = RuntimeShape::<u32, 3>::new(dims);
+        let grid: Vec<[f32; 3]> = (0..shape.size())
+            .map(|i| {
+                let c = shape.delinearize(i);
+                std::array::from_fn(|k| (origin[k] + c[k] as f64 * cell) as f32)
+            })
+            .collect();
+        let sdf: Vec<f32> = grid
+            .par_chunks(crate::mlp::BLOCK * 16)
+            .flat_map_iter(|chunk| self.mlp().eval(chunk, false).0)
+            .collect();
+        let mut buffer = SurfaceNetsBuffer::default();
+        surface_nets(&sdf, &shape, [0; 3], dims.map(|d| d - 1), &mut buffer);
+        let vertices = buffer
+            .positions
+            .iter()
+            .map(|p| {
+                let unit = Vector3::from_fn(|k, _| origin[k] + p[k] as f64 * cell);
+                self.norm.to_user(&unit)
+            })
+            .collect();
+        let triangles = buffer
+            .indices
+            .chunks_exact(3)
+            .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
+            .collect();
+        Ok((vertices, triangles))
+    }
+
     /// The network Φ (unit frame: see [`SdfModel::normalization`]).
     pub fn mlp(&self) -> &Mlp {
         self.fitter.mlp()
@@ -206,15 +276,49 @@ mod tests {
         s
     }
 
-    #[test]
-    fn a_sphere_model_measures_distance_in_the_targets_units() {
-        // A sphere of radius 50 around (1000, 0, 0), in millimetres.
+    /// A model of a sphere of radius 50 around (1000, 0, 0), in millimetres.
+    fn sphere_model() -> (SdfModel, Vector3<f64>) {
         let centre = Vector3::new(1000.0, 0.0, 0.0);
         let target: Vec<Point3<f64>> = crate::shapes::fibonacci_sphere(2000)
             .iter()
             .map(|d| Point3::from(centre + d * 50.0))
             .collect();
-        let model = SdfModel::fit(&target, &quick()).unwrap();
+        (SdfModel::fit(&target, &quick()).unwrap(), centre)
+    }
+
+    #[test]
+    fn the_mesh_of_a_sphere_model_is_a_closed_outward_sphere() {
+        let (model, centre) = sphere_model();
+        let (v, t) = model.mesh(48).unwrap();
+        assert!(t.len() > 1000, "{} triangles", t.len());
+        let worst = v
+            .iter()
+            .map(|p| ((p.coords - centre).norm() - 50.0).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 2.0, "a vertex {worst} mm off the sphere");
+        // Divergence theorem: the enclosed volume, positive when the normals point outward.
+        let volume: f64 = t
+            .iter()
+            .map(|&[a, b, c]| {
+                let (a, b, c) = (
+                    v[a].coords - centre,
+                    v[b].coords - centre,
+                    v[c].coords - centre,
+                );
+                a.dot(&b.cross(&c)) / 6.0
+            })
+            .sum();
+        let sphere = 4.0 / 3.0 * std::f64::consts::PI * 50f64.powi(3);
+        assert!(
+            (volume / sphere - 1.0).abs() < 0.05,
+            "volume {volume} vs {sphere}"
+        );
+        assert!(matches!(model.mesh(2), Err(Error::InvalidSetting { .. })));
+    }
+
+    #[test]
+    fn a_sphere_model_measures_distance_in_the_targets_units() {
+        let (model, centre) = sphere_model();
         let probes = [
             Point3::from(centre + Vector3::new(60.0, 0.0, 0.0)),
             Point3::from(centre + Vector3::new(0.0, -45.0, 0.0)),

@@ -151,10 +151,56 @@ pub(crate) fn against_model(
 ) -> Result<Registration, Error> {
     check_inputs(source, init, settings)?;
     in_pool(settings.threads, || {
-        let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-        let source = subsample(source, settings.max_source_points, &mut rng);
-        register_drawn(model, &source, rng, init, settings, refine, progress)
+        against_model_in_pool(model, source, init, settings, refine, progress)
     })?
+}
+
+/// [`against_model`] within the current pool, `settings` already checked.
+fn against_model_in_pool(
+    model: &SdfModel,
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let source = subsample(source, settings.max_source_points, &mut rng);
+    register_drawn(model, &source, rng, init, settings, refine, progress)
+}
+
+/// [`crate::SdfModel::track`]: every frame in one worker pool, each from the last good frame's
+/// pose. (A constant-velocity prediction from the last two was tried: on the procedural
+/// sequence of the tests it fed the registrations' jitter of a few tenths of a degree along the
+/// shape's least constrained rotation back into the next start, and the error grew by half per
+/// frame from frame 28 on.)
+pub(crate) fn track<'a>(
+    model: &SdfModel,
+    frames: impl IntoIterator<Item = &'a [Point3<f64>]> + Send,
+    init: &Isometry3<f64>,
+    settings: &RegisterSettings,
+) -> Result<Vec<Result<Registration, Error>>, Error> {
+    check_settings(Some(init), settings)?;
+    let frames: Vec<&[Point3<f64>]> = frames.into_iter().collect();
+    in_pool(settings.threads, || {
+        let mut last = *init;
+        frames
+            .into_iter()
+            .map(|frame| {
+                let start = Instant::now();
+                let r = validate(frame, Role::Source, MIN_POINTS).and_then(|()| {
+                    against_model_in_pool(model, frame, Some(&last), settings, false, &|_| {})
+                });
+                if let Ok(r) = &r {
+                    last = r.t_target_source;
+                }
+                r.map(|mut r| {
+                    r.time = start.elapsed();
+                    r
+                })
+            })
+            .collect()
+    })
 }
 
 /// Checks the settings, the source and the initial guess.
@@ -163,8 +209,13 @@ fn check_inputs(
     init: Option<&Isometry3<f64>>,
     settings: &RegisterSettings,
 ) -> Result<(), Error> {
+    check_settings(init, settings)?;
+    validate(source, Role::Source, MIN_POINTS)
+}
+
+/// Checks the settings and the initial guess.
+fn check_settings(init: Option<&Isometry3<f64>>, settings: &RegisterSettings) -> Result<(), Error> {
     settings.validate()?;
-    validate(source, Role::Source, MIN_POINTS)?;
     if init.is_some_and(|t| !t.to_homogeneous().iter().all(|v| v.is_finite())) {
         return Err(Error::InvalidInit);
     }

@@ -202,17 +202,52 @@ impl RegisterSettings {
         }
     }
 
-    /// A preset by name: `default` or `scans` ([`Self::partial_scans`]).
+    /// The preset for tracking ([`crate::SdfModel::track`]): each frame starts from the pose
+    /// predicted from the previous ones, so no multi-start, no Φ refinement, a few LM steps on
+    /// the frozen Φ, a polish of a few iterations without the narrow second pass, no shift
+    /// search, least squares, at most 1024 source points.
+    pub fn tracking() -> Self {
+        Self {
+            multistart: MultistartSettings {
+                enabled: false,
+                ..Default::default()
+            },
+            coarse_to_fine: CoarseToFineSettings {
+                alternations: 0,
+                lm_steps_per_alternation: 0,
+                final_lm_steps: 5,
+            },
+            robust: RobustSettings {
+                mode: RobustMode::Off,
+                ..Default::default()
+            },
+            polish: PolishSettings {
+                iterations: 5,
+                near_spacings: 0.0,
+                ..Default::default()
+            },
+            shift_search: ShiftSearchSettings {
+                radius: 0.0,
+                ..Default::default()
+            },
+            max_source_points: 1024,
+            ..Default::default()
+        }
+    }
+
+    /// A preset by name: `default`, `scans` ([`Self::partial_scans`]) or `tracking`
+    /// ([`Self::tracking`]).
     pub fn preset(name: &str) -> Option<Self> {
         match name {
             "default" => Some(Self::default()),
             "scans" => Some(Self::partial_scans()),
+            "tracking" => Some(Self::tracking()),
             _ => None,
         }
     }
 
     /// The preset names [`Self::preset`] knows.
-    pub const PRESETS: [&'static str; 2] = ["default", "scans"];
+    pub const PRESETS: [&'static str; 3] = ["default", "scans", "tracking"];
 
     /// Checks every field of every group; the error names the field at fault.
     pub fn validate(&self) -> Result<(), Error> {

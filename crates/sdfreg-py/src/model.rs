@@ -16,6 +16,9 @@ use crate::convert;
 use crate::error;
 use crate::settings::{IntoSetting, PyFitSettings, PyMlpSettings};
 
+/// A mesh as numpy arrays: vertices (V, 3) and faces (F, 3).
+type MeshArrays<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>);
+
 /// A target fitted once (see :func:`fit`).
 #[pyclass(module = "sdfreg", name = "SdfModel", frozen)]
 pub struct PySdfModel(pub Arc<SdfModel>);
@@ -143,6 +146,81 @@ impl PySdfModel {
         let model = self.0.clone();
         let q = py.detach(move || model.closest_points(&pts));
         Ok(convert::points_to_array(py, &q))
+    }
+
+    /// Φ's zero level set as a triangle mesh: ``(vertices (V, 3) float64, faces (F, 3)
+    /// int64)``, the target's units and frame, outward normals by the right-hand rule.
+    /// ``resolution``: grid cells along the target's largest side (4 to 1024).
+    #[pyo3(signature = (resolution = 128))]
+    fn mesh<'py>(&self, py: Python<'py>, resolution: i64) -> PyResult<MeshArrays<'py>> {
+        let resolution: usize = resolution.into_setting("resolution")?;
+        let model = self.0.clone();
+        let (vertices, triangles) = py
+            .detach(move || model.mesh(resolution))
+            .map_err(error::registration)?;
+        let faces: Vec<i64> = triangles.iter().flatten().map(|&i| i as i64).collect();
+        let faces = numpy::ndarray::Array2::from_shape_vec((triangles.len(), 3), faces)
+            .expect("3 indices per face");
+        Ok((
+            convert::points_to_array(py, &vertices),
+            numpy::IntoPyArray::into_pyarray(faces, py),
+        ))
+    }
+
+    /// Registers a sequence of ``frames`` ((N, 3) each) against the model, the first from
+    /// ``init`` (4×4, frame into target; identity when None), each next one from the previous
+    /// frame's pose, with the ``"tracking"`` preset (no multi-start, a few LM steps, a short
+    /// polish) and these overrides. Returns one :class:`Registration` per frame, or the
+    /// ``ValueError`` of a frame that could not be registered, in its place.
+    #[pyo3(signature = (frames, *, init = None, seed = 0, threads = 0, max_source_points = None, lm = None, polish = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn track<'py>(
+        &self,
+        py: Python<'py>,
+        frames: &Bound<'py, PyAny>,
+        init: Option<&Bound<'py, PyAny>>,
+        seed: i64,
+        threads: i64,
+        max_source_points: Option<i64>,
+        lm: Option<PyRef<'py, crate::settings::PyLmSettings>>,
+        polish: Option<PyRef<'py, crate::settings::PyPolishSettings>>,
+    ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        let clouds: Vec<Vec<nalgebra::Point3<f64>>> = frames
+            .try_iter()?
+            .enumerate()
+            .map(|(i, f)| convert::points(&f?, &format!("frames[{i}]")))
+            .collect::<PyResult<_>>()?;
+        let init = init
+            .map(|m| convert::isometry(m, "init"))
+            .transpose()?
+            .unwrap_or_else(nalgebra::Isometry3::identity);
+        let mut s = RegisterSettings::tracking();
+        s.seed = seed.into_setting("seed")?;
+        s.threads = threads.into_setting("threads")?;
+        if let Some(n) = max_source_points {
+            s.max_source_points = n.into_setting("max_source_points")?;
+        }
+        s.lm = lm.as_ref().map_or(s.lm, |g| g.0.clone());
+        s.polish = polish.as_ref().map_or(s.polish, |g| g.0.clone());
+        let model = self.0.clone();
+        let results = py
+            .detach(move || {
+                let refs: Vec<&[nalgebra::Point3<f64>]> =
+                    clouds.iter().map(Vec::as_slice).collect();
+                model.track(refs, &init, &s)
+            })
+            .map_err(error::registration)?;
+        results
+            .into_iter()
+            .enumerate()
+            .map(|(i, r)| match r {
+                Ok(r) => Ok(Bound::new(py, crate::registration::PyRegistration(r))?.into_any()),
+                Err(e) => Ok(error::argument(&format!("frames[{i}]"), e)
+                    .into_value(py)
+                    .into_bound(py)
+                    .into_any()),
+            })
+            .collect()
     }
 
     /// The target points Φ was fitted to (subsampled), (M, 3), the target's units and frame.

@@ -123,3 +123,39 @@ def test_fit_refuses_bad_targets() -> None:
         sdfreg.fit(blob(5, np.random.default_rng(0)))
     with pytest.raises(ValueError, match="seed: must be an integer ≥ 0"):
         sdfreg.fit(blob(50, np.random.default_rng(0)), seed=-1)
+
+
+def test_the_mesh_is_a_closed_surface_near_the_target(model) -> None:
+    vertices, faces = model.mesh(resolution=48)
+    assert vertices.dtype == np.float64 and faces.dtype == np.int64 and faces.shape[1] == 3
+    assert len(faces) > 500 and faces.min() >= 0 and faces.max() < len(vertices)
+    # Every vertex lies on Φ's zero level set (to a fraction of a grid cell).
+    assert np.quantile(np.abs(model.distance(vertices)), 0.95) < 1.0 / 48
+    # Closed: every edge is shared by exactly two faces.
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts == 2).mean() > 0.99
+    with pytest.raises(ValueError, match="resolution"):
+        model.mesh(resolution=2)
+
+
+def test_tracking_warm_starts_each_frame_and_reports_bad_frames(pair, model) -> None:
+    source, _, truth = pair
+    frames = []
+    for k in range(6):
+        a = np.radians(2.0 * k)
+        step = np.eye(4)
+        step[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        frames.append((source - step[:3, 3]) @ step[:3, :3])  # the source turned back by 2k°
+    frames.insert(3, np.full((5, 3), np.nan))
+    results = model.track(frames, init=truth)
+    assert isinstance(results[3], ValueError) and "frames[3]" in str(results[3])
+    good = [r for r in results if isinstance(r, sdfreg.Registration)]
+    assert len(good) == 6
+    for k, r in enumerate(good):
+        a = np.radians(2.0 * k)
+        step = np.eye(4)
+        step[:3, :3] = [[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]
+        rot, trans = pose_errors(r.transformation, truth @ step)
+        assert rot < 0.5 and trans < 0.005, (k, rot, trans)
+        assert r.stages["initial"]["given"] and r.stages["initial"]["starts"] == 0

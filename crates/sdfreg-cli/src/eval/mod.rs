@@ -13,6 +13,7 @@ mod report;
 mod stats;
 
 use anyhow::{bail, Context, Result};
+use sdfreg_core::SdfModel;
 
 use crate::args::EvalArgs;
 use stats::{robustness, summarise, PairResult};
@@ -51,6 +52,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         let bar = crate::progress_bar(a.pairs as u64);
         bar.set_message(protocol.name());
         let mut results = Vec::new();
+        let mut fit_times = Vec::new();
         for i in 0..a.pairs {
             let (name, shape) = &shapes[i % shapes.len()];
             let pair = pairs::seeded_pair(shape, protocol, i, a.common.seed);
@@ -61,8 +63,15 @@ pub fn run(a: EvalArgs) -> Result<()> {
             if a.pairs_only {
                 continue;
             }
-            let r = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
-                .with_context(|| format!("pair {i} ({name})"))?;
+            let r = if a.via_model {
+                let start = std::time::Instant::now();
+                let model = SdfModel::fit(&pair.target, &settings);
+                fit_times.push(start.elapsed().as_secs_f64());
+                model.and_then(|m| m.register(&pair.source, None, &settings))
+            } else {
+                sdfreg_core::register(&pair.source, &pair.target, None, &settings)
+            }
+            .with_context(|| format!("pair {i} ({name})"))?;
             let points = (pair.source.len(), pair.target.len());
             results.push(PairResult::new(
                 protocol,
@@ -79,6 +88,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         }
         let s = summarise(&protocol, &results);
         report::protocol(&s, &results);
+        if a.via_model {
+            report::fit_times(&fit_times, s.median_time_s);
+        }
         summaries.push(s);
         all.extend(results);
     }

@@ -52,6 +52,17 @@ pub fn protocol(s: &Summary, results: &[PairResult]) {
     }
 }
 
+/// With `--via-model`: the median fit time against the median registration through the model.
+pub fn fit_times(fit_times: &[f64], median_register_s: f64) {
+    let mut t = fit_times.to_vec();
+    t.sort_by(f64::total_cmp);
+    let fit = t.get(t.len() / 2).copied().unwrap_or(f64::NAN);
+    println!(
+        "  via the model: median fit {fit:.3} s once per target; median registration against it {median_register_s:.3} s ({:.1} % of fit + registration)",
+        100.0 * median_register_s / (fit + median_register_s)
+    );
+}
+
 /// The paper's robustness line.
 pub fn robustness(r: &Robustness) {
     println!(

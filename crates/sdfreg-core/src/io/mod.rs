@@ -235,6 +235,26 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
     })
 }
 
+/// Writes a triangle mesh as a binary little-endian PLY (`vertex` doubles, `face` lists of
+/// three `uint` indices; `.ply` only). Overwrites an existing file: callers decide whether that
+/// is wanted.
+pub fn write_mesh(
+    path: impl AsRef<Path>,
+    vertices: &[Point3<f64>],
+    triangles: &[[usize; 3]],
+) -> Result<(), IoError> {
+    let path = path.as_ref();
+    if !matches!(Format::of(path), Ok(Format::Ply)) {
+        return Err(IoError::MeshFormat {
+            path: path.to_path_buf(),
+        });
+    }
+    std::fs::write(path, ply::encode_mesh(vertices, triangles)).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -431,8 +431,30 @@ fn triangles<E: Row>(faces: &[E], n: usize) -> Result<Vec<[usize; 3]>, String> {
 }
 
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
-    let header = format!("ply\nformat binary_little_endian 1.0\ncomment written by sdfreg\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nend_header\n", points.len());
-    super::with_le_doubles(header, points)
+    encode_mesh(points, &[])
+}
+
+/// A binary little-endian PLY of `points` (doubles) and, when there are any, `triangles`
+/// (`face` rows of a uchar count and three uint indices).
+pub(super) fn encode_mesh(points: &[Point3<f64>], triangles: &[[usize; 3]]) -> Vec<u8> {
+    let faces = if triangles.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "element face {}\nproperty list uchar uint vertex_indices\n",
+            triangles.len()
+        )
+    };
+    let header = format!("ply\nformat binary_little_endian 1.0\ncomment written by sdfreg\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\n{faces}end_header\n", points.len());
+    let mut out = super::with_le_doubles(header, points);
+    out.reserve(triangles.len() * 13);
+    for t in triangles {
+        out.push(3);
+        for &i in t {
+            out.extend_from_slice(&(i as u32).to_le_bytes());
+        }
+    }
+    out
 }
 
 #[cfg(test)]

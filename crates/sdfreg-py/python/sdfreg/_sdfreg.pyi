@@ -1,7 +1,7 @@
 """Native part of sdfreg (Rust, pyo3). Import from ``sdfreg``, not from here."""
 
 import os
-from typing import Any, Dict, List, Optional, Protocol, Union, final
+from typing import Any, Dict, Iterable, List, Optional, Protocol, Tuple, Union, final
 
 import numpy as np
 import numpy.typing as npt
@@ -460,6 +460,28 @@ class SdfModel:
         """∇Φ at ``points`` as an (N, 3) float64 array (about unit length near the surface)."""
     def closest_points(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
         """The closest surface point of each of ``points``, ``p − Φ ∇Φ/‖∇Φ‖``, as (N, 3)."""
+    def mesh(
+        self, resolution: int = 128
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+        """Φ's zero level set as a triangle mesh: ``(vertices (V, 3) float64, faces (F, 3)
+        int64)``, the target's units and frame, outward normals by the right-hand rule.
+        ``resolution``: grid cells along the target's largest side (4 to 1024)."""
+    def track(
+        self,
+        frames: Iterable[Union[npt.ArrayLike, _HasPoints]],
+        *,
+        init: Optional[npt.ArrayLike] = None,
+        seed: int = 0,
+        threads: int = 0,
+        max_source_points: Optional[int] = None,
+        lm: Optional[LmSettings] = None,
+        polish: Optional[PolishSettings] = None,
+    ) -> List[Union[Registration, ValueError]]:
+        """Registers a sequence of ``frames`` ((N, 3) each) against the model, the first from
+        ``init`` (4×4, frame into target; identity when None), each next one from the previous
+        frame's pose, with the ``"tracking"`` preset (no multi-start, a few LM steps, a short
+        polish) and these overrides. Returns one :class:`Registration` per frame, or the
+        ``ValueError`` of a frame that could not be registered, in its place."""
     @property
     def target_points(self) -> npt.NDArray[np.float64]:
         """The target points Φ was fitted to (subsampled), (M, 3), the target's units and frame."""
