@@ -438,3 +438,120 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
         "{err}"
     );
 }
+
+#[test]
+fn fit_once_then_register_mesh_and_track_against_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let truth = pair(d);
+    let model = d.join("tgt.sdfm");
+    let out = sdfreg()
+        .args(["fit", "--prefit-steps", "300", "-o"])
+        .arg(&model)
+        .arg(d.join("tgt.ply"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("fitted 800 target points") && err.contains("|Φ| on them"),
+        "{err}"
+    );
+    // The model replaces the target cloud; with --refine it gives the cloud's own numbers.
+    let against = |extra: &[&str]| {
+        let out = sdfreg()
+            .arg("register")
+            .arg(d.join("src.xyz"))
+            .arg(&model)
+            .args(["--prefit-steps", "300"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        parse_matrix(&String::from_utf8(out.stdout).unwrap())
+    };
+    let frozen = isometry_from_matrix(&against(&[])).unwrap();
+    let (rot, tr) = pose_errors(&frozen, &truth);
+    assert!(rot < 1.0 && tr < 0.01, "against the model: {rot}°, {tr}");
+    let cloud = register_cmd(d)
+        .args(["--prefit-steps", "300"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        against(&["--refine"]),
+        parse_matrix(&String::from_utf8(cloud.stdout).unwrap())
+    );
+    let refine_cloud = register_cmd(d).arg("--refine").output().unwrap();
+    assert_eq!(refine_cloud.status.code(), Some(2));
+
+    // The mesh of the model, as PLY faces.
+    let mesh = d.join("mesh.ply");
+    let out = sdfreg()
+        .arg("mesh")
+        .arg(&model)
+        .args(["--resolution", "32", "-o"])
+        .arg(&mesh)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let (vertices, triangles) = sdfreg_core::io::read_mesh(&mesh).unwrap();
+    assert!(vertices.len() > 100 && triangles.len() > 200);
+
+    // Tracking: the source moved a little more each frame; one bad frame is reported in its line.
+    let frames: Vec<_> = (0..4)
+        .map(|k| {
+            let step = Isometry3::rotation(Vector3::z() * (2.0 * k as f64).to_radians());
+            let path = d.join(format!("frame{k}.xyz"));
+            let src = sdfreg_core::io::read_point_cloud(d.join("src.xyz")).unwrap();
+            write_xyz(&path, &src.iter().map(|p| step * p).collect::<Vec<_>>());
+            (path, truth * step.inverse())
+        })
+        .collect();
+    let init: Vec<String> = truth
+        .to_homogeneous()
+        .transpose()
+        .iter()
+        .map(|v| format!("{v:.17e}"))
+        .collect();
+    std::fs::write(d.join("init.txt"), init.join(" ")).unwrap();
+    let poses = d.join("poses.jsonl");
+    let mut track = sdfreg();
+    track.arg("track").arg(&model);
+    track
+        .arg(&frames[0].0)
+        .arg(&frames[1].0)
+        .arg(d.join("missing.xyz"));
+    track.arg(&frames[2].0).arg(&frames[3].0);
+    let out = track
+        .arg("--init")
+        .arg(d.join("init.txt"))
+        .arg("-o")
+        .arg(&poses)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("1 of 5 frames failed"), "{err}");
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(&poses)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 5);
+    assert!(lines[2]["error"].as_str().unwrap().contains("missing.xyz"));
+    let good: Vec<&serde_json::Value> = lines.iter().filter(|l| l.get("error").is_none()).collect();
+    for ((_, expected), line) in frames.iter().zip(good) {
+        let rows: Vec<Vec<f64>> = serde_json::from_value(line["transformation"].clone()).unwrap();
+        let m = Matrix4::from_fn(|r, c| rows[r][c]);
+        let (rot, tr) = pose_errors(&isometry_from_matrix(&m).unwrap(), expected);
+        assert!(rot < 0.5 && tr < 0.005, "tracked frame: {rot}°, {tr}");
+    }
+}
