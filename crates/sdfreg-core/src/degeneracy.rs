@@ -26,7 +26,8 @@ use crate::lm::jacobian_row;
 pub const FREE_MOTION_RATIO: f64 = 2e-3;
 
 /// What kind of motion a free direction is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum MotionKind {
     /// A rotation about an axis (at least 90 % of the unit twist is rotation).
     Rotation,
@@ -48,7 +49,7 @@ impl MotionKind {
 }
 
 /// A motion of the source that leaves the residuals (nearly) unchanged.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FreeMotion {
     /// Rotation, translation or screw.
     pub kind: MotionKind,
@@ -87,7 +88,7 @@ impl std::fmt::Display for FreeMotion {
 }
 
 /// The constraint spectrum of a registration: how well the data fix each direction of the pose.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Degeneracy {
     /// Eigenvalues of the normalised information matrix (see the module docs), ascending, each
     /// divided by the largest.

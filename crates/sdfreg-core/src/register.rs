@@ -62,8 +62,8 @@ pub enum Stage {
     Final,
 }
 
-/// The outcome of [`register`].
-#[derive(Clone, Debug, PartialEq)]
+/// The outcome of [`register`]. Serialises with serde (the Python binding pickles it that way).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Registration {
     /// Maps source coordinates into the target frame (`p_target = R p_source + t`), user units.
     pub t_target_source: Isometry3<f64>,

@@ -108,6 +108,16 @@ impl PyRegistration {
         self.0.time.as_secs_f64()
     }
 
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
+        let json = serde_json::to_string(&self.0)
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+        let restore = py
+            .import("sdfreg._sdfreg")?
+            .getattr("_registration_from_json")?;
+        let args = pyo3::types::PyTuple::new(py, [json])?;
+        pyo3::types::PyTuple::new(py, [restore.into_any(), args.into_any()])
+    }
+
     fn __repr__(&self) -> String {
         let r = &self.0;
         let m = r.matrix();
@@ -129,6 +139,14 @@ impl PyRegistration {
             rows.join(",\n                             "),
         )
     }
+}
+
+/// A registration from its JSON (unpickling).
+#[pyfunction]
+pub fn _registration_from_json(json: &str) -> PyResult<PyRegistration> {
+    serde_json::from_str(json).map(PyRegistration).map_err(|e| {
+        pyo3::exceptions::PyValueError::new_err(format!("not a pickled Registration: {e}"))
+    })
 }
 
 /// A motion of the source the clouds do not determine (see `Registration.free_motions`).

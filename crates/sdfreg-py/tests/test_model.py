@@ -159,3 +159,21 @@ def test_tracking_warm_starts_each_frame_and_reports_bad_frames(pair, model) -> 
         rot, trans = pose_errors(r.transformation, truth @ step)
         assert rot < 0.5 and trans < 0.005, (k, rot, trans)
         assert r.stages["initial"]["given"] and r.stages["initial"]["starts"] == 0
+
+
+def test_a_registration_pickles_exactly() -> None:
+    """Results come back from worker processes whole: pose, matrices, free motions, stages."""
+    rng = np.random.default_rng(3)
+    h, t = rng.uniform(-0.4, 0.4, 2000), rng.uniform(0, 2 * np.pi, 2000)
+    tube = np.column_stack([0.15 * np.cos(t), 0.15 * np.sin(t), h])  # a free spin to carry
+    r = sdfreg.register(tube + [0.03, -0.02, 0.01], tube, **QUICK)
+    back = pickle.loads(pickle.dumps(r))
+    np.testing.assert_array_equal(back.transformation, r.transformation)
+    np.testing.assert_array_equal(back.information, r.information)
+    np.testing.assert_array_equal(back.constraint_eigenvalues, r.constraint_eigenvalues)
+    assert [f.kind for f in back.free_motions] == [f.kind for f in r.free_motions] == ["rotation"]
+    np.testing.assert_array_equal(back.free_motions[0].axis, r.free_motions[0].axis)
+    assert (back.stages, back.fitness, back.cost, back.time_s, back.stop_reason) == (
+        r.stages, r.fitness, r.cost, r.time_s, r.stop_reason)
+    with pytest.raises(ValueError, match="not a pickled Registration"):
+        sdfreg._sdfreg._registration_from_json("{}")

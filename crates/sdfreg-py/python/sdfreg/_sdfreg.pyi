@@ -21,6 +21,7 @@ __all__ = [
     "ShiftSearchSettings",
     "__version__",
     "_model_from_bytes",
+    "_registration_from_json",
     "fit",
     "load_model",
     "_core_defaults",
@@ -348,6 +349,7 @@ class Registration:
     @property
     def time_s(self) -> float:
         """Wall time of the registration, seconds."""
+    def __reduce__(self) -> Any: ...
 
 def register(
     source: Union[npt.ArrayLike, _HasPoints],
@@ -540,6 +542,9 @@ def load_model(path: _PathLike) -> SdfModel:
 
 def _model_from_bytes(data: bytes) -> SdfModel:
     """A model from ``.sdfm`` bytes (unpickling)."""
+
+def _registration_from_json(json: str) -> Registration:
+    """A registration from its JSON (unpickling)."""
 
 def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.NDArray[np.float64]:
     """Reads a point cloud as an (N, 3) float64 array.
