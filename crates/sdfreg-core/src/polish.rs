@@ -77,6 +77,9 @@ pub struct PolishSettings {
     /// A Gauss–Newton stage has converged when its step is below this, both in rotation
     /// (radians) and translation (normalised units). Default 10⁻⁷.
     pub tolerance: f64,
+    /// Try the snap onto the nearest target points (kept only when the source lies on them).
+    /// Default true; tracking turns it off (frames are never copies of the target).
+    pub snap: bool,
 }
 
 impl Default for PolishSettings {
@@ -89,6 +92,7 @@ impl Default for PolishSettings {
             near_spacings: 3.0,
             prior_weight: 1e-4,
             tolerance: 1e-7,
+            snap: true,
         }
     }
 }
@@ -300,7 +304,7 @@ pub fn polish(
     // nearest target point below SNAP_RATIO × the target's median spacing. On independent
     // samples or noise it never does (the local planes' result stands).
     let mut snapped = false;
-    if s.iterations > 0 {
+    if s.iterations > 0 && s.snap {
         let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
             (0..target.len()).map(|_| OnceLock::new()).collect();
         let (candidate, n, stop, last) = gauss_newton(source, pose, s, Residuals::Points, |x| {

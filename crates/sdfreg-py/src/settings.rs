@@ -243,6 +243,7 @@ settings_class! {
     ///     near_spacings: A second pass uses only points within this many target spacings.
     ///     prior_weight: Weight of the prior towards the SDF's pose (relative to trace H).
     ///     tolerance: A pass has converged when its step is below this.
+    ///     snap: Try snapping onto the nearest target points (kept when the source lies on them).
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -251,6 +252,7 @@ settings_class! {
         near_spacings: f64 = 3.0,
         prior_weight: f64 = 1e-4,
         tolerance: f64 = 1e-7,
+        snap: bool = true,
     }
 }
 

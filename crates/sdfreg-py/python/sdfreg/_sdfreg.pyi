@@ -236,6 +236,7 @@ class PolishSettings:
         near_spacings: float = 3.0,
         prior_weight: float = 1e-4,
         tolerance: float = 1e-7,
+        snap: bool = True,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -251,6 +252,8 @@ class PolishSettings:
     def prior_weight(self) -> float: ...
     @property
     def tolerance(self) -> float: ...
+    @property
+    def snap(self) -> bool: ...
 
 @final
 class ShiftSearchSettings:
