@@ -94,6 +94,20 @@ pub fn _model_from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<PySdfModel> {
     Ok(PySdfModel(Arc::new(model)))
 }
 
+impl PySdfModel {
+    /// `f` of the model and `points` (an (N, 3) array of finite points, copied), with the GIL
+    /// released.
+    fn query<T: Send>(
+        &self,
+        points: &Bound<'_, PyAny>,
+        f: impl FnOnce(&SdfModel, &[nalgebra::Point3<f64>]) -> T + Send,
+    ) -> PyResult<T> {
+        let pts = convert::finite_points(points, "points")?;
+        let model = self.0.clone();
+        Ok(points.py().detach(move || f(&model, &pts)))
+    }
+}
+
 #[pymethods]
 impl PySdfModel {
     /// Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
@@ -116,9 +130,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.0.clone();
-        let d = py.detach(move || model.distance(&pts));
+        let d = self.query(points, |m, p| m.distance(p))?;
         Ok(PyArray1::from_vec(py, d))
     }
 
@@ -128,9 +140,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.0.clone();
-        let g = py.detach(move || model.gradient(&pts));
+        let g = self.query(points, |m, p| m.gradient(p))?;
         let as_points: Vec<nalgebra::Point3<f64>> =
             g.into_iter().map(nalgebra::Point3::from).collect();
         Ok(convert::points_to_array(py, &as_points))
@@ -142,9 +152,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.0.clone();
-        let q = py.detach(move || model.closest_points(&pts));
+        let q = self.query(points, |m, p| m.closest_points(p))?;
         Ok(convert::points_to_array(py, &q))
     }
 
