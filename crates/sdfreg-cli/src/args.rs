@@ -22,8 +22,8 @@ pub enum Command {
     Fit(FitArgs),
     /// Write the zero level set of a model's SDF as a triangle mesh (.ply), to look at it.
     Mesh(MeshArgs),
-    /// Register a sequence of frames against a model, each from the pose predicted by the
-    /// previous ones; one JSON line per frame.
+    /// Register a sequence of frames against a model, each from the previous frame's pose; one
+    /// JSON line per frame.
     Track(TrackArgs),
     /// Register a built-in procedural shape against a moved copy and print the errors.
     Demo(DemoArgs),
