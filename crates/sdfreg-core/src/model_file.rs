@@ -177,134 +177,142 @@ impl SdfModel {
 
     /// A model from `.sdfm` bytes; `path` names them in errors.
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, IoError> {
-        let bad = |reason: String| IoError::BadModel {
+        decode(bytes).map_err(|reason| IoError::BadModel {
             path: PathBuf::from(path),
             reason,
-        };
-        let file = SafeTensors::deserialize(bytes).map_err(|e| bad(container_error(&e)))?;
-        let (_, header) =
-            SafeTensors::read_metadata(bytes).map_err(|e| bad(container_error(&e)))?;
-        let meta = header.metadata().clone().unwrap_or_default();
-        let Some(text) = meta.get(METADATA_KEY) else {
-            return Err(bad(format!(
-                "not an sdfreg model: a safetensors file without `{METADATA_KEY}` metadata"
-            )));
-        };
-        // Format and version first, so a newer file is told apart from a damaged one.
-        let value: serde_json::Value =
-            serde_json::from_str(text).map_err(|e| bad(format!("metadata: {e}")))?;
-        match value.get("format").and_then(|f| f.as_str()) {
-            Some(FORMAT) => {}
-            other => {
-                return Err(bad(format!(
-                    "not an sdfreg model: its format is {}",
-                    other.map_or("missing".to_string(), |f| format!("{f:?}"))
-                )))
-            }
-        }
-        let version = value.get("version").and_then(|v| v.as_u64()).unwrap_or(0);
-        if version > VERSION as u64 {
-            return Err(bad(format!(
-                "written by a newer sdfreg (model format version {version}; this one reads up to {VERSION})"
-            )));
-        }
-        let header: Header =
-            serde_json::from_value(value).map_err(|e| bad(format!("metadata: {e}")))?;
-        let tensor = |name: &'static str, dtype: Dtype, cols: Option<usize>| {
-            let t = file
-                .tensor(name)
-                .map_err(|_| bad(format!("no tensor `{name}`")))?;
-            let shape_ok = match cols {
-                None => t.shape().len() == 1,
-                Some(c) => t.shape().len() == 2 && t.shape()[1] == c,
-            };
-            if t.dtype() != dtype || !shape_ok {
-                let want = cols.map_or("[N]".to_string(), |c| format!("[N, {c}]"));
-                return Err(bad(format!(
-                    "tensor `{name}`: expected {dtype:?} {want}, found {:?} {:?}",
-                    t.dtype(),
-                    t.shape()
-                )));
-            }
-            Ok((name, dtype, t.shape().to_vec(), t.data().to_vec()))
-        };
-        let tensors: Tensors = vec![
-            tensor("phi.params", Dtype::F32, None)?,
-            tensor("phi.adam_m", Dtype::F32, None)?,
-            tensor("phi.adam_v", Dtype::F32, None)?,
-            tensor("target.points", Dtype::F32, Some(3))?,
-            tensor("frame.centre", Dtype::F64, None)?,
-            tensor("frame.scale", Dtype::F64, None)?,
-        ];
-        let settings_json = serde_json::to_string(&header.settings).expect("settings serialise");
-        if header.crc32 != checksum(&settings_json, &tensors) {
-            return Err(bad(
-                "corrupted: the checksum does not match the contents".into()
-            ));
-        }
-        let settings = header.settings;
-        let f32s = |b: &[u8]| -> Vec<f32> {
-            b.chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-                .collect()
-        };
-        let f64s = |b: &[u8]| -> Vec<f64> {
-            b.chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-                .collect()
-        };
-        let (centre, scale) = (f64s(&tensors[4].3), f64s(&tensors[5].3));
-        if centre.len() != 3 || scale.len() != 1 || !(scale[0] > 0.0 && scale[0].is_finite()) {
-            return Err(bad(
-                "the frame is not a centre of 3 numbers and a positive scale".into(),
-            ));
-        }
-        let points = f32s(&tensors[3].3);
-        if points.len() < 6 || points.iter().any(|v| !v.is_finite()) {
-            return Err(bad("`target.points` needs at least 2 finite points".into()));
-        }
-        settings
-            .mlp
-            .validate()
-            .and(settings.fit.validate())
-            .map_err(|e| bad(format!("settings: {e}")))?;
-        let target: Vec<[f32; 3]> = points.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
-        let mut fitter = SdfFitter::new(
-            target,
-            &settings.mlp,
-            &settings.fit,
-            settings.seed ^ FIT_SEED_SALT,
-        );
-        let state = FitterState {
-            params: f32s(&tensors[0].3),
-            adam_m: f32s(&tensors[1].3),
-            adam_v: f32s(&tensors[2].3),
-            adam_steps: header.adam_steps,
-            rng_word_pos: header
-                .rng_word_pos
-                .parse()
-                .map_err(|_| bad("`rng_word_pos` is not a number".into()))?,
-        };
-        let n = state.params.len();
-        fitter.restore(state).ok_or_else(|| {
-            bad(format!(
-                "`phi.params` holds {n} numbers; the settings' network needs {}",
-                fitter.mlp().num_params()
-            ))
-        })?;
-        if fitter.mlp().params().iter().any(|v| !v.is_finite()) {
-            return Err(bad("`phi.params` holds a non-finite number".into()));
-        }
-        Ok(SdfModel {
-            norm: Normalization {
-                centre: nalgebra::Vector3::new(centre[0], centre[1], centre[2]),
-                scale: scale[0],
-            },
-            fitter,
-            mlp: settings.mlp,
-            seed: settings.seed,
         })
     }
+}
+
+/// The model in `bytes`, or what is wrong with them.
+fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
+    let file = SafeTensors::deserialize(bytes).map_err(|e| container_error(&e))?;
+    let header = read_header(bytes)?;
+    let tensors = read_tensors(&file)?;
+    let settings_json = serde_json::to_string(&header.settings).expect("settings serialise");
+    if header.crc32 != checksum(&settings_json, &tensors) {
+        return Err("corrupted: the checksum does not match the contents".into());
+    }
+    let f32s = |b: &[u8]| -> Vec<f32> {
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+            .collect()
+    };
+    let f64s = |b: &[u8]| -> Vec<f64> {
+        b.chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect()
+    };
+    let (centre, scale) = (f64s(&tensors[4].3), f64s(&tensors[5].3));
+    if centre.len() != 3 || scale.len() != 1 || !(scale[0] > 0.0 && scale[0].is_finite()) {
+        return Err("the frame is not a centre of 3 numbers and a positive scale".into());
+    }
+    let points = f32s(&tensors[3].3);
+    if points.len() < 6 || points.iter().any(|v| !v.is_finite()) {
+        return Err("`target.points` needs at least 2 finite points".into());
+    }
+    let settings = header.settings;
+    settings
+        .mlp
+        .validate()
+        .and(settings.fit.validate())
+        .map_err(|e| format!("settings: {e}"))?;
+    let target: Vec<[f32; 3]> = points.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
+    let mut fitter = SdfFitter::new(
+        target,
+        &settings.mlp,
+        &settings.fit,
+        settings.seed ^ FIT_SEED_SALT,
+    );
+    let state = FitterState {
+        params: f32s(&tensors[0].3),
+        adam_m: f32s(&tensors[1].3),
+        adam_v: f32s(&tensors[2].3),
+        adam_steps: header.adam_steps,
+        rng_word_pos: header
+            .rng_word_pos
+            .parse()
+            .map_err(|_| "`rng_word_pos` is not a number".to_string())?,
+    };
+    let n = state.params.len();
+    fitter.restore(state).ok_or_else(|| {
+        format!(
+            "`phi.params` holds {n} numbers; the settings' network needs {}",
+            fitter.mlp().num_params()
+        )
+    })?;
+    if fitter.mlp().params().iter().any(|v| !v.is_finite()) {
+        return Err("`phi.params` holds a non-finite number".into());
+    }
+    Ok(SdfModel {
+        norm: Normalization {
+            centre: nalgebra::Vector3::new(centre[0], centre[1], centre[2]),
+            scale: scale[0],
+        },
+        fitter,
+        mlp: settings.mlp,
+        seed: settings.seed,
+    })
+}
+
+/// The JSON header under [`METADATA_KEY`]: the format and the version checked first, so a
+/// newer file is told apart from a damaged one.
+fn read_header(bytes: &[u8]) -> Result<Header, String> {
+    let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| container_error(&e))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let Some(text) = meta.get(METADATA_KEY) else {
+        return Err(format!(
+            "not an sdfreg model: a safetensors file without `{METADATA_KEY}` metadata"
+        ));
+    };
+    let value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| format!("metadata: {e}"))?;
+    match value.get("format").and_then(|f| f.as_str()) {
+        Some(FORMAT) => {}
+        other => {
+            return Err(format!(
+                "not an sdfreg model: its format is {}",
+                other.map_or("missing".to_string(), |f| format!("{f:?}"))
+            ))
+        }
+    }
+    let version = value.get("version").and_then(|v| v.as_u64()).unwrap_or(0);
+    if version > VERSION as u64 {
+        return Err(format!(
+            "written by a newer sdfreg (model format version {version}; this one reads up to {VERSION})"
+        ));
+    }
+    serde_json::from_value(value).map_err(|e| format!("metadata: {e}"))
+}
+
+/// The tensors of the table in the module docs, in its order, each checked for dtype and shape.
+fn read_tensors(file: &SafeTensors<'_>) -> Result<Tensors, String> {
+    let tensor = |name: &'static str, dtype: Dtype, cols: Option<usize>| {
+        let t = file
+            .tensor(name)
+            .map_err(|_| format!("no tensor `{name}`"))?;
+        let shape_ok = match cols {
+            None => t.shape().len() == 1,
+            Some(c) => t.shape().len() == 2 && t.shape()[1] == c,
+        };
+        if t.dtype() != dtype || !shape_ok {
+            let want = cols.map_or("[N]".to_string(), |c| format!("[N, {c}]"));
+            return Err(format!(
+                "tensor `{name}`: expected {dtype:?} {want}, found {:?} {:?}",
+                t.dtype(),
+                t.shape()
+            ));
+        }
+        Ok((name, dtype, t.shape().to_vec(), t.data().to_vec()))
+    };
+    Ok(vec![
+        tensor("phi.params", Dtype::F32, None)?,
+        tensor("phi.adam_m", Dtype::F32, None)?,
+        tensor("phi.adam_v", Dtype::F32, None)?,
+        tensor("target.points", Dtype::F32, Some(3))?,
+        tensor("frame.centre", Dtype::F64, None)?,
+        tensor("frame.scale", Dtype::F64, None)?,
+    ])
 }
 
 /// What a safetensors error means for a model file.
