@@ -24,6 +24,11 @@
 //!   [`RobustSettings`] (with the [`RobustMode`] choice), [`PolishSettings`],
 //!   [`ShiftSearchSettings`]; presets [`RegisterSettings::default`] and
 //!   [`RegisterSettings::partial_scans`].
+//! - [`SdfModel`]: the fitted target as an object — [`SdfModel::fit`] once, then
+//!   [`SdfModel::register`] many sources against it (Φ frozen; [`SdfModel::register_refined`]
+//!   refines a private copy), [`SdfModel::track`] a sequence of frames, query it
+//!   ([`SdfModel::distance`], [`SdfModel::gradient`], [`SdfModel::closest_points`]), mesh it
+//!   ([`SdfModel::mesh`]), save and load it as `.sdfm` ([`model_file`]).
 //! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
 //!   and place ([`IoError`]).
 //! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,

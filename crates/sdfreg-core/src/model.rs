@@ -30,7 +30,19 @@ use crate::{Registration, Stage};
 /// Salt of the SDF fit's seed (its random stream differs from the registration's).
 pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
-/// A target fitted once: its normalisation, Φ and the target points (see the module docs).
+/// A target fitted once: its normalisation, Φ (with the state of its fit) and the target
+/// points. Fit once with [`SdfModel::fit`], then register many sources against it, track, query,
+/// mesh, save and load it; `.sdfm` files are safetensors ([`crate::model_file`]).
+///
+/// ```no_run
+/// use sdfreg_core::{io::read_point_cloud, RegisterSettings, SdfModel};
+/// let settings = RegisterSettings::default();
+/// let model = SdfModel::fit(&read_point_cloud("map.ply")?, &settings)?;
+/// model.save("map.sdfm")?;
+/// let r = model.register(&read_point_cloud("scan.ply")?, None, &settings)?; // Φ frozen
+/// let d = model.distance(&[nalgebra::Point3::new(0.0, 0.0, 0.0)]); // target units
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct SdfModel {
     pub(crate) norm: Normalization,
