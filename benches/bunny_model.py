@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -23,14 +22,9 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
+from common import pose_errors
 
 SCANS = ["bun000", "bun045", "bun090", "bun180", "bun270", "bun315", "chin", "ear_back", "top2", "top3"]
-
-
-def errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    d = estimate[:3, :3].T @ truth[:3, :3]
-    angle = math.degrees(math.acos(float(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-    return angle, float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
 
 
 def read_gt(path: Path) -> dict[str, np.ndarray]:
@@ -60,11 +54,11 @@ def main() -> None:
         for name in SCANS:
             scan = sdfreg.read_point_cloud(bunny / "data" / f"{name}.ply")
             r = sdfreg.register(scan, model, init=init, preset="scans")
-            rot, tr = errors(r.transformation, gt[name])
+            rot, tr = pose_errors(r.transformation, gt[name])
             ok += rot < 0.5 and tr < 1e-3
             rows.append({"start": start_name, "scan": name, "rotation_error_deg": rot,
                          "translation_error_m": tr, "fitness": r.fitness, "time_s": r.time_s,
-                         "start_rotation_deg": errors(np.eye(4), gt[name])[0]})
+                         "start_rotation_deg": pose_errors(np.eye(4), gt[name])[0]})
             print(f"{start_name:11s} {name:9s} (starts {rows[-1]['start_rotation_deg']:6.1f}° off) "
                   f"{rot:7.3f}° {tr * 1e3:7.3f} mm  fitness {r.fitness:.3f}  {r.time_s:.2f} s", flush=True)
         print(f"{start_name}: {ok}/{len(SCANS)} under 0.5° and 1 mm")

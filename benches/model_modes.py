@@ -13,34 +13,13 @@ each and the mean rotation error of the two registrations against the model.
 from __future__ import annotations
 
 import argparse
-import math
 import statistics
 import time
 
 import numpy as np
 
 import sdfreg
-
-
-def blob(n: int, rng: np.random.Generator) -> np.ndarray:
-    d = rng.standard_normal((n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    r = (1.0 + 0.25 * np.sin(3.0 * d[:, 0] + 1.0) * np.cos(2.0 * d[:, 1])
-         + 0.2 * d[:, 2] ** 3 + 0.15 * d[:, 0] * d[:, 1])
-    return d * np.array([0.55, 0.4, 0.3]) * r[:, None]
-
-
-def euler_xyz(deg: np.ndarray) -> np.ndarray:
-    a, b, c = np.radians(deg)
-    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
-    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
-    return rx @ ry @ rz
-
-
-def rotation_error(estimate: np.ndarray, truth: np.ndarray) -> float:
-    d = estimate[:3, :3].T @ truth[:3, :3]
-    return math.degrees(math.acos(float(np.clip((np.trace(d) - 1) / 2, -1, 1))))
+from common import blob, euler_xyz, pose_errors
 
 
 def main() -> None:
@@ -68,7 +47,7 @@ def main() -> None:
         for mode, refine in [("frozen", False), ("refined", True)]:
             r = sdfreg.register(source, model, refine=refine)
             times[mode].append(r.time_s)
-            errors[mode].append(rotation_error(r.transformation, truth))
+            errors[mode].append(pose_errors(r.transformation, truth)[0])
     full = statistics.median(times["full register"])
     for mode, t in times.items():
         line = f"{mode:14s} median {1e3 * statistics.median(t):7.1f} ms ({statistics.median(t) / full:5.1%} of a full register)"

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
+from common import pose_errors
 
 
 BUNNY_PAIRS = [
@@ -45,12 +46,6 @@ BUNNY_PAIRS = [
 
 
 SCAN_SETTINGS = {"preset": "scans"}
-
-
-def errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    d = estimate[:3, :3].T @ truth[:3, :3]
-    angle = math.degrees(math.acos(float(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-    return angle, float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
 
 
 def read_gt_scans(path: Path) -> dict[str, np.ndarray]:
@@ -77,7 +72,7 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
         r = sdfreg.register(src + offset, tgt + offset, **settings)
         est = r.transformation.copy()
         est[:3, 3] += est[:3, :3] @ offset - offset
-    rot, tr = errors(est, truth)
+    rot, tr = pose_errors(est, truth)
     row = {
         "pair": name,
         "rotation_error_deg": rot,

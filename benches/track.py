@@ -26,14 +26,7 @@ import time
 import numpy as np
 
 import sdfreg
-
-
-def blob(n: int, rng: np.random.Generator) -> np.ndarray:
-    d = rng.standard_normal((n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    r = (1.0 + 0.25 * np.sin(3.0 * d[:, 0] + 1.0) * np.cos(2.0 * d[:, 1])
-         + 0.2 * d[:, 2] ** 3 + 0.15 * d[:, 0] * d[:, 1])
-    return d * np.array([0.55, 0.4, 0.3]) * r[:, None]
+from common import blob, pose_errors
 
 
 def motion(k: int) -> np.ndarray:
@@ -45,12 +38,6 @@ def motion(k: int) -> np.ndarray:
     m[:3, :3] = np.eye(3) + math.sin(th) * x + (1 - math.cos(th)) * x @ x
     m[:3, 3] = [0.01 * k, 0.005 * math.sin(k * 0.1), 0.0]
     return m
-
-
-def errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    d = estimate[:3, :3].T @ truth[:3, :3]
-    angle = math.degrees(math.acos(float(np.clip((np.trace(d) - 1) / 2, -1, 1))))
-    return angle, float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
 
 
 def summary(name: str, times: list[float], errs: list[tuple[float, float]]) -> dict:
@@ -87,7 +74,7 @@ def main() -> None:
     print(f"sdfreg.fit: {time.perf_counter() - start:.2f} s (once)")
     results = model.track(frames, init=truths[0])
     rows = [summary("sdfreg model.track", [r.time_s for r in results],
-                    [errors(r.transformation, m) for r, m in zip(results, truths)])]
+                    [pose_errors(r.transformation, m) for r, m in zip(results, truths)])]
     try:
         import open3d as o3d
     except ImportError:
@@ -105,7 +92,7 @@ def main() -> None:
                 o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30))
             times.append(time.perf_counter() - t0)
             pose = r.transformation
-            errs.append(errors(pose, m))
+            errs.append(pose_errors(pose, m))
         rows.append(summary("Open3D ICP point-to-plane", times, errs))
     if args.json:
         with open(args.json, "w") as out:
