@@ -120,3 +120,56 @@ fn tracking_a_moving_shape_does_not_drift() {
     let r = results[100].as_ref().unwrap();
     assert!(r.stages.initial.given && r.stages.initial.starts == 0);
 }
+
+#[test]
+fn many_pairs_on_every_core_equal_each_pair_alone() {
+    use sdfreg_core::{register_many, Pair, PairTarget};
+    let s = quick();
+    let target = shapes::blob(900, &mut ChaCha8Rng::seed_from_u64(21));
+    let model = SdfModel::fit(&target, &s).unwrap();
+    let sources: Vec<Vec<Point3<f64>>> = (0..3)
+        .map(|k| moved(&target, &motion(20.0 + 30.0 * k as f64, [0.1, 0.0, -0.1])))
+        .collect();
+    let few = &target[..5];
+    let pairs = [
+        Pair {
+            source: &sources[0],
+            target: PairTarget::Cloud(&target),
+            init: None,
+        },
+        Pair {
+            source: &sources[1],
+            target: PairTarget::Model(&model),
+            init: None,
+        },
+        Pair {
+            source: few,
+            target: PairTarget::Cloud(&target),
+            init: None,
+        },
+        Pair {
+            source: &sources[2],
+            target: PairTarget::Model(&model),
+            init: None,
+        },
+    ];
+    let results = register_many(&pairs, &s, 2).unwrap();
+    assert_eq!(results.len(), 4);
+    let alone = register(&sources[0], &target, None, &s).unwrap();
+    assert_eq!(
+        results[0].as_ref().unwrap().t_target_source,
+        alone.t_target_source
+    );
+    for k in [1, 3] {
+        let alone = model.register(pairs[k].source, None, &s).unwrap();
+        let r = results[k].as_ref().unwrap();
+        assert_eq!(
+            (r.t_target_source, r.stages),
+            (alone.t_target_source, alone.stages)
+        );
+    }
+    assert!(matches!(
+        results[2],
+        Err(sdfreg_core::Error::TooFewPoints { found: 5, .. })
+    ));
+}

@@ -29,6 +29,8 @@
 //!   refines a private copy), [`SdfModel::track`] a sequence of frames, query it
 //!   ([`SdfModel::distance`], [`SdfModel::gradient`], [`SdfModel::closest_points`]), mesh it
 //!   ([`SdfModel::mesh`]), save and load it as `.sdfm` ([`model_file`]).
+//! - [`register_many`]: many [`Pair`]s (against clouds or models) on every core, one pair per
+//!   worker, results in input order and equal to registering each alone.
 //! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
 //!   and place ([`IoError`]).
 //! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,
@@ -66,6 +68,7 @@ pub mod sdf_fit;
 pub mod se3;
 pub mod shapes;
 
+mod batch;
 mod coarse_to_fine;
 mod degeneracy;
 mod error;
@@ -80,6 +83,7 @@ mod robust;
 mod settings;
 mod shift_search;
 
+pub use batch::{register_many, Pair, PairTarget};
 pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use error::{Error, IoError, Role};
 pub use lm::{LmSettings, StopReason};
