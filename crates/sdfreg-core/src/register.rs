@@ -30,7 +30,7 @@ use nalgebra::{Isometry3, Matrix4, Matrix6, Point3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::cloud::{subsample, transformed_f32, validate, Normalization};
+use crate::cloud::{subsample, validate, Normalization};
 use crate::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::degeneracy::Degeneracy;
 use crate::error::{Error, Role};
@@ -312,7 +312,11 @@ fn run(
 ) -> Registration {
     let mut fit = Cow::Borrowed(&model.fitter);
     let (hypotheses, initial) = initial_pose(&fit, unit, init, s, policy, rng, progress);
-    let alternated = alternate(
+    let Alternated {
+        mut lm,
+        survivors,
+        winner,
+    } = alternate(
         &mut fit,
         &unit.source,
         &hypotheses,
@@ -321,7 +325,7 @@ fn run(
         refine,
         progress,
     );
-    let mut lm = alternated.lm.clone();
+    let after_alternations = lm.pose;
     progress(Stage::Final);
     let lm_stop = final_lm(&fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
     let polished = polish(&unit.source, fit.target(), fit.tree(), &lm.pose, &s.polish);
@@ -335,9 +339,11 @@ fn run(
         s.inlier_distance,
     );
     let trace = Trace {
-        start: hypotheses[alternated.winner],
+        start: hypotheses[winner],
         initial,
-        alternated,
+        survivors,
+        winner,
+        after_alternations,
         lm,
         lm_stop,
         polished,
@@ -351,7 +357,11 @@ struct Trace {
     /// The winning hypothesis's starting pose (unit frame).
     start: Isometry3<f64>,
     initial: InitialReport,
-    alternated: Alternated,
+    /// Hypotheses alive at the end of the alternations, and the winner's index.
+    survivors: usize,
+    winner: usize,
+    /// The winner's pose after the alternations (unit frame).
+    after_alternations: Isometry3<f64>,
     /// The solver after the final LM.
     lm: Lm,
     lm_stop: StopReason,
@@ -371,7 +381,7 @@ fn measure(
     let change = |a: &Isometry3<f64>, b: &Isometry3<f64>| {
         PoseChange::between(&unit.source, a, b, unit.norm.scale)
     };
-    let after_alternations = t.alternated.lm.pose;
+    let after_alternations = t.after_alternations;
     let polish_enabled = s.polish.iterations > 0;
     let setter = t.searched.taken.as_ref().unwrap_or(&t.polished);
     let stop_reason = if polish_enabled && !setter.undone {
@@ -385,8 +395,8 @@ fn measure(
             ..t.initial
         },
         coarse_to_fine: CoarseToFineReport {
-            survivors: t.alternated.survivors,
-            winner: t.alternated.winner,
+            survivors: t.survivors,
+            winner: t.winner,
             change: change(&t.start, &after_alternations),
         },
         final_lm: FinalLmReport {
@@ -406,8 +416,12 @@ fn measure(
             change: change(&t.polished.pose, &t.searched.pose),
         },
     };
-    let moved = transformed_f32(&unit.source, &t.searched.pose);
-    let q = quality(fit.mlp(), &moved, &unit.norm, s.free_motion_ratio);
+    let q = quality(
+        fit.mlp(),
+        &t.searched.moved,
+        &unit.norm,
+        s.free_motion_ratio,
+    );
     Registration {
         t_target_source: unit.norm.pose_from_unit(&t.searched.pose),
         converged: stop_reason.converged(),

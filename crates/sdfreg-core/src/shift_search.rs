@@ -184,6 +184,8 @@ pub fn occupancy_peaks(
 pub(crate) struct Searched {
     /// The pose: a polished peak, or the input pose when none fitted clearly better.
     pub pose: Isometry3<f64>,
+    /// The source points moved by [`Self::pose`] (the quality figures reuse them).
+    pub moved: Vec<[f32; 3]>,
     /// Fitness and inlier RMS (normalised) at [`Self::pose`].
     pub fitness: f64,
     /// RMS distance of the inliers, normalised units.
@@ -212,11 +214,13 @@ pub(crate) fn search(
     let moved = transformed_f32(source, pose);
     let (fitness, inlier_rms) = inlier_stats(tree, &moved, thr2);
     let peaks = occupancy_peaks(&moved, target, s);
+    let peaks_tried = peaks.len();
     let mut out = Searched {
         pose: *pose,
+        moved,
         fitness,
         inlier_rms,
-        peaks: peaks.len(),
+        peaks: peaks_tried,
         taken: None,
         start_fitness: fitness,
     };
@@ -224,11 +228,13 @@ pub(crate) fn search(
     for peak in peaks {
         let start = Translation3::from(peak.offset) * pose;
         let candidate = polish(source, target, tree, &start, polish_settings);
-        let (f, rms) = inlier_stats(tree, &transformed_f32(source, &candidate.pose), thr2);
+        let candidate_moved = transformed_f32(source, &candidate.pose);
+        let (f, rms) = inlier_stats(tree, &candidate_moved, thr2);
         if f >= best {
             best = f;
             (out.fitness, out.inlier_rms) = (f, rms);
             out.pose = candidate.pose;
+            out.moved = candidate_moved;
             out.taken = Some(candidate);
         }
     }
