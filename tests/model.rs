@@ -123,7 +123,7 @@ fn tracking_a_moving_shape_does_not_drift() {
 
 #[test]
 fn many_pairs_on_every_core_equal_each_pair_alone() {
-    use sdfreg_core::{register_many, Pair, PairTarget};
+    use sdfreg_core::{register_many, Pair};
     let s = quick();
     let target = shapes::blob(900, &mut ChaCha8Rng::seed_from_u64(21));
     let model = SdfModel::fit(&target, &s).unwrap();
@@ -132,25 +132,12 @@ fn many_pairs_on_every_core_equal_each_pair_alone() {
         .collect();
     let few = &target[..5];
     let pairs = [
+        Pair::clouds(&sources[0], &target),
+        Pair::against_model(&sources[1], &model),
+        Pair::clouds(few, &target),
         Pair {
-            source: &sources[0],
-            target: PairTarget::Cloud(&target),
-            init: None,
-        },
-        Pair {
-            source: &sources[1],
-            target: PairTarget::Model(&model),
-            init: None,
-        },
-        Pair {
-            source: few,
-            target: PairTarget::Cloud(&target),
-            init: None,
-        },
-        Pair {
-            source: &sources[2],
-            target: PairTarget::Model(&model),
-            init: None,
+            seed: Some(7),
+            ..Pair::against_model(&sources[2], &model)
         },
     ];
     let results = register_many(&pairs, &s, 2).unwrap();
@@ -160,8 +147,9 @@ fn many_pairs_on_every_core_equal_each_pair_alone() {
         results[0].as_ref().unwrap().t_target_source,
         alone.t_target_source
     );
-    for k in [1, 3] {
-        let alone = model.register(pairs[k].source, None, &s).unwrap();
+    for (k, seed) in [(1, s.seed), (3, 7)] {
+        let seeded = RegisterSettings { seed, ..s.clone() };
+        let alone = model.register(&pairs[k].source, None, &seeded).unwrap();
         let r = results[k].as_ref().unwrap();
         assert_eq!(
             (r.t_target_source, r.stages),
@@ -172,4 +160,43 @@ fn many_pairs_on_every_core_equal_each_pair_alone() {
         results[2],
         Err(sdfreg_core::Error::TooFewPoints { found: 5, .. })
     ));
+}
+
+#[test]
+fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
+    use sdfreg_core::{register_each, Pair};
+    use std::borrow::Cow;
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let s = quick();
+    let target = shapes::blob(600, &mut ChaCha8Rng::seed_from_u64(5));
+    let model = SdfModel::fit(&target, &s).unwrap();
+    let pulled = AtomicUsize::new(0);
+    // Each pair's source is made only when a worker asks for it, as a file would be read.
+    let pairs = (0..6).map(|k| {
+        pulled.fetch_add(1, Ordering::Relaxed);
+        let source = moved(&target, &motion(10.0 * k as f64, [0.05, 0.0, 0.0]));
+        (
+            format!("pair {k}"),
+            Pair {
+                source: Cow::Owned(source),
+                ..Pair::against_model(&[], &model)
+            },
+        )
+    });
+    let stop = AtomicBool::new(false);
+    let results = Mutex::new(Vec::new());
+    register_each(pairs, &s, 1, &stop, |key, r| {
+        results.lock().unwrap().push((key, r.unwrap().fitness));
+        if results.lock().unwrap().len() == 2 {
+            stop.store(true, Ordering::Relaxed);
+        }
+    })
+    .unwrap();
+    let results = results.into_inner().unwrap();
+    // One worker: pairs 0 and 1 ran, then the stop; pair 2 was never made.
+    assert_eq!(pulled.load(Ordering::Relaxed), 2);
+    let keys: Vec<&str> = results.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(keys, ["pair 0", "pair 1"]);
+    assert!(results.iter().all(|(_, fitness)| *fitness > 0.99));
 }

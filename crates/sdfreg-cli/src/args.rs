@@ -25,6 +25,9 @@ pub enum Command {
     /// Register a sequence of frames against a model, each from the previous frame's pose; one
     /// JSON line per frame.
     Track(TrackArgs),
+    /// Register many pairs listed in a CSV file on every core, one JSON line per pair;
+    /// resumable.
+    Batch(BatchArgs),
     /// Register a built-in procedural shape against a moved copy and print the errors.
     Demo(DemoArgs),
     /// Evaluate on the paper's ModelNet40 protocols over a folder of shapes.
@@ -239,6 +242,29 @@ pub struct RegisterArgs {
     /// Overwrite --output / --aligned if they exist.
     #[arg(long)]
     pub force: bool,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct BatchArgs {
+    /// The pairs, one per row: `source,target[,init[,seed]]`. TARGET is a cloud or a model
+    /// (.sdfm; loaded once, registered against with Φ frozen); INIT a 4×4 matrix file (source
+    /// into target) or empty; SEED an integer or empty (--seed). Relative paths are relative to
+    /// this file's folder. A first row `source,target,…` is a header; `#` starts a comment.
+    pub pairs: PathBuf,
+    /// Results, one JSON line per finished pair (`row`, `source`, `target`, `seed`, `ok`, then
+    /// the registration as `register --output FILE.json` writes it, or `error`). If it exists,
+    /// the batch resumes: rows already in it are skipped.
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Start --output afresh instead of resuming it.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Settings of every pair; --threads is the number of pairs registered at once (0 = one
+    /// per core), each on one thread.
     #[command(flatten)]
     pub common: Common,
 }

@@ -1,7 +1,9 @@
 //! `sdfreg`: the command-line front end. Converts flags and files, forwards to sdfreg-core.
-//! Exit codes: 0 success, 2 bad input or failure (one line on stderr naming the problem).
+//! Exit codes: 0 success, 2 bad input or failure (one line on stderr naming the problem),
+//! 3 `batch` finished but some pairs failed (their errors are in its output).
 
 mod args;
+mod batch;
 mod eval;
 mod output;
 
@@ -33,6 +35,7 @@ fn main() -> ExitCode {
         Command::Fit(a) => cmd_fit(a),
         Command::Mesh(a) => cmd_mesh(a),
         Command::Track(a) => cmd_track(a),
+        Command::Batch(a) => batch::run(a),
         Command::Demo(a) => cmd_demo(a),
         Command::Eval(a) => eval::run(a),
     };
@@ -49,7 +52,11 @@ fn main() -> ExitCode {
                 }
             }
             eprintln!("sdfreg: {}", line.replace('\n', " "));
-            ExitCode::from(2)
+            if e.is::<batch::SomeFailed>() {
+                ExitCode::from(3)
+            } else {
+                ExitCode::from(2)
+            }
         }
     }
 }

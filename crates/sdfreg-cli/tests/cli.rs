@@ -555,3 +555,215 @@ fn fit_once_then_register_mesh_and_track_against_the_model() {
         assert!(rot < 0.5 && tr < 0.005, "tracked frame: {rot}°, {tr}");
     }
 }
+
+/// `sdfreg batch PAIRS --output OUT` in `dir` with the quick settings.
+fn batch_cmd(dir: &Path, extra: &[&str]) -> Command {
+    let mut c = sdfreg();
+    c.current_dir(dir)
+        .args(["batch", "pairs.csv", "--output", "out.jsonl"])
+        .args(QUICK)
+        .args(extra);
+    c
+}
+
+fn matrix_text_of(m: &Matrix4<f64>) -> String {
+    (0..4)
+        .map(|r| {
+            format!(
+                "{:e} {:e} {:e} {:e}\n",
+                m[(r, 0)],
+                m[(r, 1)],
+                m[(r, 2)],
+                m[(r, 3)]
+            )
+        })
+        .collect()
+}
+
+/// The complete records of a batch output (header and a line cut short left out), by row.
+fn batch_records(path: &Path) -> std::collections::BTreeMap<u64, serde_json::Value> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let complete = &text[..text.rfind('\n').map_or(0, |i| i + 1)];
+    let mut lines = complete.lines();
+    let header: serde_json::Value = serde_json::from_str(lines.next().unwrap()).unwrap();
+    assert_eq!(header["format"], "sdfreg-batch-results");
+    let mut records = std::collections::BTreeMap::new();
+    for line in lines {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        let row = v["row"].as_u64().unwrap();
+        assert!(records.insert(row, v).is_none(), "row {row} twice");
+    }
+    records
+}
+
+fn transformation(v: &serde_json::Value) -> Vec<f64> {
+    v["transformation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(|row| row.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()))
+        .collect()
+}
+
+#[test]
+fn batch_registers_each_row_as_register_does_records_failures_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let truth = pair(d);
+    let fit = sdfreg()
+        .current_dir(d)
+        .args([
+            "fit",
+            "tgt.ply",
+            "-o",
+            "model.sdfm",
+            "--prefit-steps",
+            "300",
+        ])
+        .output()
+        .unwrap();
+    assert!(fit.status.success());
+    std::fs::write(d.join("init.txt"), matrix_text_of(&truth.to_homogeneous())).unwrap();
+    std::fs::write(
+        d.join("pairs.csv"),
+        "source,target,init,seed\n\
+         src.xyz,tgt.ply\n\
+         # a comment\n\
+         src.xyz,model.sdfm,,3\n\
+         missing.xyz,tgt.ply\n\
+         src.xyz, tgt.ply , init.txt\n",
+    )
+    .unwrap();
+    let out = batch_cmd(d, &[]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(err.contains("1 of 4 pairs failed"), "{err}");
+    let records = batch_records(&d.join("out.jsonl"));
+    assert_eq!(records.keys().copied().collect::<Vec<_>>(), [1, 2, 3, 4]);
+    let ok: Vec<bool> = records
+        .values()
+        .map(|v| v["ok"].as_bool().unwrap())
+        .collect();
+    assert_eq!(ok, [true, true, false, true]);
+    assert!(
+        records[&3]["error"]
+            .as_str()
+            .unwrap()
+            .contains("missing.xyz"),
+        "{}",
+        records[&3]
+    );
+    assert_eq!(records[&2]["seed"], 3);
+    // Each row equals `register` of that pair with its seed, bit for bit.
+    for (row, target, seed) in [(1, "tgt.ply", "0"), (2, "model.sdfm", "3")] {
+        let json = d.join(format!("alone{row}.json"));
+        let alone = sdfreg()
+            .current_dir(d)
+            .args(["register", "src.xyz", target, "--seed", seed])
+            .args(QUICK)
+            .arg("-o")
+            .arg(&json)
+            .output()
+            .unwrap();
+        assert!(alone.status.success());
+        let alone: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        assert_eq!(transformation(&records[&row]), transformation(&alone));
+        assert_eq!(records[&row]["stages"], alone["stages"]);
+    }
+    let m = Matrix4::from_row_slice(&transformation(&records[&4]));
+    assert!((m - truth.to_homogeneous()).amax() < 0.02);
+
+    // Resume after a kill that cut row 2's line short: only row 2 runs again, to the same pose.
+    let text = std::fs::read_to_string(d.join("out.jsonl")).unwrap();
+    let kept: Vec<&str> = text.lines().filter(|l| !l.contains("\"row\":2,")).collect();
+    let row2 = text.lines().find(|l| l.contains("\"row\":2,")).unwrap();
+    std::fs::write(
+        d.join("out.jsonl"),
+        kept.join("\n") + "\n" + &row2[..row2.len() / 2],
+    )
+    .unwrap();
+    let out = batch_cmd(d, &[]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(err.contains("3 of 4 pairs already done, 1 to go"), "{err}");
+    assert!(err.contains("dropping an incomplete last line"), "{err}");
+    let resumed = batch_records(&d.join("out.jsonl"));
+    assert_eq!(resumed.len(), 4);
+    assert_eq!(transformation(&resumed[&2]), transformation(&records[&2]));
+
+    // Other settings, another pairs file or a foreign output: refused, naming the file.
+    let out = batch_cmd(d, &["--refine-steps", "30"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("out.jsonl: was begun with other settings (differing: fit)"),
+        "{err}"
+    );
+    std::fs::write(d.join("out.jsonl"), "x,y,z\n1,2,3\n").unwrap();
+    let out = batch_cmd(d, &[]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("out.jsonl:1: not an sdfreg batch results file"),
+        "{err}"
+    );
+    std::fs::write(
+        d.join("pairs.csv"),
+        "src.xyz,tgt.ply\nsrc.xyz,tgt.ply,a,1,extra\n",
+    )
+    .unwrap();
+    let out = batch_cmd(d, &["--force"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("pairs.csv:2: expected 2 to 4 fields (source,target[,init[,seed]]), found 5"),
+        "{err}"
+    );
+}
+
+#[test]
+fn a_killed_batch_loses_no_finished_pair_and_resumes_to_the_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    pair(d);
+    let rows = 30;
+    std::fs::write(d.join("pairs.csv"), "src.xyz,tgt.ply\n".repeat(rows)).unwrap();
+    let mut child = batch_cmd(d, &["--threads", "2"])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let out = d.join("out.jsonl");
+    // Kill it once a few pairs are in (or let it finish on a very fast machine).
+    let start = std::time::Instant::now();
+    while std::fs::read_to_string(&out).map_or(0, |t| t.lines().count()) < 4
+        && start.elapsed().as_secs() < 120
+    {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let before = batch_records(&out);
+    assert!(
+        before.len() >= 3 && before.len() < rows,
+        "{} done",
+        before.len()
+    );
+    let out_status = batch_cmd(d, &["--threads", "2"]).output().unwrap();
+    assert!(
+        out_status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out_status.stderr)
+    );
+    let after = batch_records(&out);
+    assert_eq!(
+        after.keys().copied().collect::<Vec<_>>(),
+        (1..=rows as u64).collect::<Vec<_>>()
+    );
+    // The rows done before the kill are kept as they were; every row gives the same pose.
+    for (row, v) in &before {
+        assert_eq!(&after[row], v);
+    }
+    let first = transformation(&after[&1]);
+    assert!(after.values().all(|v| transformation(v) == first));
+}

@@ -1,60 +1,171 @@
 //! Many pairs at once: every core busy, one pair per worker.
 //!
 //! One registration uses two threads well but leaves a larger machine idle, and a dataset is
-//! aligned by the thousand. [`register_many`] runs the pairs on a pool of its own, each pair on
-//! one worker (its registration single-threaded), so the cores work on different pairs instead
-//! of sharing one. Results come back in input order; each is bit-identical to registering that
-//! pair alone with the same settings (the result never depends on the thread count); a pair
-//! that fails gives its error in its place and the others go on.
+//! aligned by the thousand. The pairs run on a pool of their own, each pair on one worker (its
+//! registration single-threaded), so the cores work on different pairs instead of sharing one.
+//! Each result is bit-identical to registering that pair alone with the same settings and seed
+//! (a result never depends on the thread count); a pair that fails gives its error in its place
+//! and the others go on.
+//!
+//! - [`register_many`]: a slice of pairs in, a `Vec` of results in input order out.
+//! - [`register_each`]: any iterator of keyed pairs, pulled lazily (a pair's clouds may be read
+//!   only when a worker is free for it, so memory stays flat over thousands of pairs), each
+//!   result handed to a callback as it finishes, with a flag that stops the batch early.
+
+use std::borrow::Cow;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
 
 use nalgebra::{Isometry3, Point3};
-use rayon::prelude::*;
+use rayon::iter::{ParallelBridge, ParallelIterator};
 
 use crate::error::Error;
 use crate::model::SdfModel;
 use crate::{register, RegisterSettings, Registration};
 
 /// What a pair's source is registered against.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub enum PairTarget<'a> {
-    /// A target cloud: Φ is fitted for this pair ([`crate::register()`]).
-    Cloud(&'a [Point3<f64>]),
+    /// A target cloud, user units: Φ is fitted for this pair ([`crate::register()`]).
+    Cloud(Cow<'a, [Point3<f64>]>),
     /// A stored model, Φ frozen ([`SdfModel::register`]); the same model may serve many pairs.
     Model(&'a SdfModel),
 }
 
-/// One pair of a batch.
-#[derive(Clone, Copy, Debug)]
+/// One pair of a batch. The clouds are borrowed or owned ([`Cow`]), so an iterator may read
+/// them from files as it goes.
+#[derive(Clone, Debug)]
 pub struct Pair<'a> {
     /// The cloud to move, user units.
-    pub source: &'a [Point3<f64>],
+    pub source: Cow<'a, [Point3<f64>]>,
     /// What it is registered against.
     pub target: PairTarget<'a>,
     /// An initial guess mapping source into target (replaces the multi-start), or none.
     pub init: Option<Isometry3<f64>>,
+    /// This pair's seed; none = the settings' [`RegisterSettings::seed`].
+    pub seed: Option<u64>,
+}
+
+impl<'a> Pair<'a> {
+    /// `source` against the cloud `target`, borrowed, no initial guess, the settings' seed.
+    pub fn clouds(source: &'a [Point3<f64>], target: &'a [Point3<f64>]) -> Self {
+        Pair {
+            source: Cow::Borrowed(source),
+            target: PairTarget::Cloud(Cow::Borrowed(target)),
+            init: None,
+            seed: None,
+        }
+    }
+
+    /// `source` against the stored `model` (Φ frozen), no initial guess, the settings' seed.
+    pub fn against_model(source: &'a [Point3<f64>], model: &'a SdfModel) -> Self {
+        Pair {
+            source: Cow::Borrowed(source),
+            target: PairTarget::Model(model),
+            init: None,
+            seed: None,
+        }
+    }
+
+    /// The same pair borrowing this one's clouds (no copy).
+    pub fn borrowed(&self) -> Pair<'_> {
+        Pair {
+            source: Cow::Borrowed(&self.source),
+            target: match &self.target {
+                PairTarget::Cloud(points) => PairTarget::Cloud(Cow::Borrowed(points)),
+                PairTarget::Model(model) => PairTarget::Model(model),
+            },
+            init: self.init,
+            seed: self.seed,
+        }
+    }
+
+    /// Registers this pair alone with `settings` (its seed replacing theirs when it has one):
+    /// what each pair of a batch gives.
+    pub fn register(&self, settings: &RegisterSettings) -> Result<Registration, Error> {
+        let seeded;
+        let s = match self.seed {
+            Some(seed) => {
+                seeded = RegisterSettings {
+                    seed,
+                    ..settings.clone()
+                };
+                &seeded
+            }
+            None => settings,
+        };
+        match &self.target {
+            PairTarget::Cloud(target) => register(&self.source, target, self.init.as_ref(), s),
+            PairTarget::Model(model) => model.register(&self.source, self.init.as_ref(), s),
+        }
+    }
 }
 
 /// Registers every pair with `settings` on `threads` workers (0 = one per core), one pair per
-/// worker; results in input order, each equal to registering that pair alone (see the module
-/// docs). `settings.threads` is not read.
+/// worker; results in input order, each equal to `pair.register(settings)` (see the module
+/// docs). `settings.threads` is not read. Fails as a whole only for invalid settings or a pool
+/// that cannot be made.
 pub fn register_many(
     pairs: &[Pair<'_>],
     settings: &RegisterSettings,
     threads: usize,
 ) -> Result<Vec<Result<Registration, Error>>, Error> {
+    let slots: Mutex<Vec<Option<Result<Registration, Error>>>> =
+        Mutex::new((0..pairs.len()).map(|_| None).collect());
+    let never = AtomicBool::new(false);
+    register_each(
+        pairs.iter().map(Pair::borrowed).enumerate(),
+        settings,
+        threads,
+        &never,
+        |i, r| slots.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(r),
+    )?;
+    let slots = slots.into_inner().unwrap_or_else(|e| e.into_inner());
+    Ok(slots
+        .into_iter()
+        .map(|r| r.expect("register_each hands every pair's result back when not stopped"))
+        .collect())
+}
+
+/// Registers the keyed pairs `pairs` yields with `settings` on `threads` workers (0 = one per
+/// core), one pair per worker, and calls `done(key, result)` as each finishes (in the order
+/// they finish, from the worker threads). The iterator is pulled only when a worker is free,
+/// so it may read each pair's clouds as it is asked for them.
+///
+/// Once `stop` is set, no further pair is started; the pairs already running finish and are
+/// reported, then the call returns. Each result equals `pair.register(settings)`;
+/// `settings.threads` is not read. Fails as a whole only for invalid settings or a pool that
+/// cannot be made (before any pair runs).
+pub fn register_each<'a, K, I, D>(
+    pairs: I,
+    settings: &RegisterSettings,
+    threads: usize,
+    stop: &AtomicBool,
+    done: D,
+) -> Result<(), Error>
+where
+    K: Send,
+    I: IntoIterator<Item = (K, Pair<'a>)>,
+    I::IntoIter: Send,
+    D: Fn(K, Result<Registration, Error>) + Sync,
+{
     settings.validate()?;
     let one = RegisterSettings {
         threads: 1,
         ..settings.clone()
     };
+    let mut pairs = pairs.into_iter();
+    // Checks `stop` before asking for the next pair, so a stopped batch reads no more input.
+    let until_stopped = std::iter::from_fn(move || {
+        if stop.load(Ordering::Relaxed) {
+            None
+        } else {
+            pairs.next()
+        }
+    });
     crate::register::in_pool(threads, || {
-        pairs
-            .par_iter()
-            .with_max_len(1)
-            .map(|p| match p.target {
-                PairTarget::Cloud(target) => register(p.source, target, p.init.as_ref(), &one),
-                PairTarget::Model(model) => model.register(p.source, p.init.as_ref(), &one),
-            })
-            .collect()
+        until_stopped
+            .par_bridge()
+            .for_each(|(key, pair)| done(key, pair.register(&one)))
     })
 }

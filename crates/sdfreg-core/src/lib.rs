@@ -31,6 +31,8 @@
 //!   ([`SdfModel::mesh`]), save and load it as `.sdfm` ([`model_file`]).
 //! - [`register_many`]: many [`Pair`]s (against clouds or models) on every core, one pair per
 //!   worker, results in input order and equal to registering each alone.
+//! - [`register_each`]: the same over any iterator of keyed pairs, pulled lazily, each result
+//!   handed back as it finishes; [`batch_log`]: the results file of `sdfreg batch`, and its reader.
 //! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
 //!   and place ([`IoError`]).
 //! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,
@@ -69,6 +71,7 @@ pub mod se3;
 pub mod shapes;
 
 mod batch;
+pub mod batch_log;
 mod coarse_to_fine;
 mod degeneracy;
 mod error;
@@ -83,7 +86,7 @@ mod robust;
 mod settings;
 mod shift_search;
 
-pub use batch::{register_many, Pair, PairTarget};
+pub use batch::{register_each, register_many, Pair, PairTarget};
 pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use error::{Error, IoError, Role};
 pub use lm::{LmSettings, StopReason};

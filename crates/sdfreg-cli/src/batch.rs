@@ -1,0 +1,415 @@
+//! `sdfreg batch PAIRS.csv --output RESULTS.jsonl`: many pairs on every core, one pair per
+//! worker, each result appended to the output as one JSON line the moment it finishes
+//! (`sdfreg_core::batch_log` documents the file), so a crash or Ctrl-C loses no finished pair;
+//! run again, it resumes: rows already in the output are skipped.
+
+use std::collections::HashMap;
+use std::fs::{File, OpenOptions};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::Mutex;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use nalgebra::Isometry3;
+use sdfreg_core::batch_log::{header_line, read_batch_log, BatchLog};
+use sdfreg_core::{register_each, Pair, PairTarget, RegisterSettings, Registration, SdfModel};
+
+use crate::args::BatchArgs;
+use crate::output::registration_json;
+
+/// Some pairs failed (their lines in the output hold the errors); `main` exits with 3.
+#[derive(Debug, thiserror::Error)]
+#[error("{failed} of {total} pairs failed (their errors are in {output})")]
+pub struct SomeFailed {
+    pub failed: usize,
+    pub total: usize,
+    pub output: String,
+}
+
+/// One data row of the pairs file.
+#[derive(Debug)]
+struct Row {
+    /// 1-based data row (headers and comments not counted), the key in the output.
+    number: u64,
+    /// The paths as written in the file, and resolved against its folder.
+    source: String,
+    target: String,
+    source_path: PathBuf,
+    target_path: PathBuf,
+    init: Option<PathBuf>,
+    seed: Option<u64>,
+}
+
+pub fn run(a: BatchArgs) -> Result<()> {
+    if crate::same_file(&a.output, &a.pairs) {
+        bail!(
+            "{}: refusing to write the output over the pairs file",
+            a.output.display()
+        );
+    }
+    let rows = read_pairs(&a.pairs)?;
+    let settings = a.common.settings()?;
+    let pairs_name = a
+        .pairs
+        .canonicalize()
+        .unwrap_or_else(|_| a.pairs.clone())
+        .display()
+        .to_string();
+    let (file, done) = open_output(&a, &pairs_name, &rows, &settings)?;
+    let earlier_failed = done.values().filter(|&&ok| !ok).count();
+    let pending: Vec<&Row> = rows
+        .iter()
+        .filter(|r| !done.contains_key(&r.number))
+        .collect();
+    if !done.is_empty() {
+        eprintln!(
+            "sdfreg: {}: resuming: {} of {} pairs already done, {} to go",
+            a.output.display(),
+            done.len(),
+            rows.len(),
+            pending.len()
+        );
+    }
+    // Each model is loaded once, for all its rows.
+    let mut models: HashMap<&Path, Result<SdfModel, String>> = HashMap::new();
+    for row in &pending {
+        if crate::is_model(&row.target_path) && !models.contains_key(row.target_path.as_path()) {
+            let model = SdfModel::load(&row.target_path).map_err(|e| e.to_string());
+            models.insert(&row.target_path, model);
+        }
+    }
+    let bar = bar(pending.len() as u64);
+    let out = Mutex::new(Output {
+        file,
+        path: &a.output,
+        failed: 0,
+        written: 0,
+        error: None,
+        bar: &bar,
+    });
+    let start = Instant::now();
+    // Rows whose files cannot be read are recorded as failed right away; the rest register.
+    let loaded = pending.iter().filter_map(|&row| {
+        let seed = row.seed.unwrap_or(settings.seed);
+        match load(row, seed, &models, &a) {
+            Ok(pair) => Some((row, pair)),
+            Err(e) => {
+                lock(&out).record(row, seed, Err(format!("{e:#}")));
+                None
+            }
+        }
+    });
+    let stop = AtomicBool::new(false);
+    register_each(loaded, &settings, a.common.threads, &stop, |row, r| {
+        let seed = row.seed.unwrap_or(settings.seed);
+        let r = r.map_err(|e| name_cloud(&e, row));
+        let mut out = lock(&out);
+        out.record(row, seed, r);
+        if out.error.is_some() {
+            // The output cannot be written: start no more pairs.
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    })?;
+    bar.finish_and_clear();
+    let out = out.into_inner().unwrap_or_else(|e| e.into_inner());
+    if let Some(e) = out.error {
+        return Err(e);
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    eprintln!(
+        "sdfreg: {}: {} pairs registered, {} failed in {:.1} s ({:.2} pairs/s); {} done before",
+        a.output.display(),
+        out.written - out.failed,
+        out.failed,
+        seconds,
+        out.written as f64 / seconds.max(1e-9),
+        done.len()
+    );
+    let failed = out.failed + earlier_failed;
+    if failed > 0 {
+        return Err(SomeFailed {
+            failed,
+            total: rows.len(),
+            output: a.output.display().to_string(),
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// Where finished pairs go: the output file (one line per pair, written and flushed whole)
+/// and the progress bar.
+struct Output<'a> {
+    file: File,
+    path: &'a Path,
+    written: usize,
+    failed: usize,
+    /// The first write that failed; no line is written after it.
+    error: Option<anyhow::Error>,
+    bar: &'a ProgressBar,
+}
+
+impl Output<'_> {
+    fn record(&mut self, row: &Row, seed: u64, result: Result<Registration, String>) {
+        if self.error.is_some() {
+            return;
+        }
+        let mut line = serde_json::json!({
+            "row": row.number,
+            "source": row.source,
+            "target": row.target,
+            "seed": seed,
+            "ok": result.is_ok(),
+        });
+        let fields = match &result {
+            Ok(r) => registration_json(r),
+            Err(e) => serde_json::json!({ "error": e }),
+        };
+        if let (Some(line), serde_json::Value::Object(fields)) = (line.as_object_mut(), fields) {
+            line.extend(fields);
+        }
+        let text = line.to_string() + "\n";
+        if let Err(e) = self
+            .file
+            .write_all(text.as_bytes())
+            .and_then(|()| self.file.flush())
+        {
+            self.error = Some(anyhow::Error::new(e).context(self.path.display().to_string()));
+            return;
+        }
+        self.written += 1;
+        self.failed += usize::from(result.is_err());
+        if self.failed > 0 {
+            self.bar.set_message(format!("{} failed", self.failed));
+        }
+        self.bar.inc(1);
+    }
+}
+
+fn lock<'m, T>(m: &'m Mutex<T>) -> std::sync::MutexGuard<'m, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A progress bar with the rate and the time left, on stderr when it is a terminal.
+fn bar(len: u64) -> ProgressBar {
+    let bar = crate::progress_bar(len);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{spinner} [{bar:30}] {pos}/{len} pairs, {per_sec}, {eta} left {msg}",
+        )
+        .expect("a valid template")
+        .progress_chars("=> "),
+    );
+    bar
+}
+
+/// Reads a row's clouds and initial guess.
+fn load<'m>(
+    row: &Row,
+    seed: u64,
+    models: &'m HashMap<&Path, Result<SdfModel, String>>,
+    a: &BatchArgs,
+) -> Result<Pair<'m>> {
+    let source = crate::read_cloud(&row.source_path, &a.input, seed)?;
+    let target = match models.get(row.target_path.as_path()) {
+        Some(Ok(model)) => PairTarget::Model(model),
+        Some(Err(e)) => bail!("{e}"),
+        None => PairTarget::Cloud(crate::read_cloud(&row.target_path, &a.input, seed)?.into()),
+    };
+    let init: Option<Isometry3<f64>> = row.init.as_deref().map(crate::read_matrix).transpose()?;
+    Ok(Pair {
+        source: source.into(),
+        target,
+        init,
+        seed: Some(seed),
+    })
+}
+
+/// A registration error with the file it is about named, when it is about one cloud.
+fn name_cloud(e: &sdfreg_core::Error, row: &Row) -> String {
+    match e.role() {
+        Some(sdfreg_core::Role::Source) => format!("{}: {e}", row.source_path.display()),
+        Some(sdfreg_core::Role::Target) => format!("{}: {e}", row.target_path.display()),
+        None => e.to_string(),
+    }
+}
+
+/// The rows of the pairs file; any malformed row fails the whole batch before it starts,
+/// naming the line.
+fn read_pairs(path: &Path) -> Result<Vec<Row>> {
+    let base = path.parent().unwrap_or(Path::new(""));
+    let resolve = |p: &str| base.join(p);
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .flexible(true)
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .with_context(|| path.display().to_string())?;
+    let mut rows = Vec::new();
+    for (k, record) in reader.records().enumerate() {
+        let record = record.with_context(|| path.display().to_string())?;
+        let line = record.position().map_or(0, |p| p.line());
+        let at = || format!("{}:{line}", path.display());
+        if k == 0
+            && record
+                .get(0)
+                .is_some_and(|f| f.eq_ignore_ascii_case("source"))
+        {
+            continue;
+        }
+        if record.iter().all(str::is_empty) {
+            continue;
+        }
+        if !(2..=4).contains(&record.len()) {
+            bail!(
+                "{}: expected 2 to 4 fields (source,target[,init[,seed]]), found {}",
+                at(),
+                record.len()
+            );
+        }
+        let (source, target) = (&record[0], &record[1]);
+        if source.is_empty() || target.is_empty() {
+            bail!("{}: the source and the target must both be given", at());
+        }
+        let init = record.get(2).filter(|s| !s.is_empty()).map(resolve);
+        let seed = match record.get(3).filter(|s| !s.is_empty()) {
+            Some(s) => Some(s.parse::<u64>().map_err(|_| {
+                anyhow::anyhow!("{}: seed {s:?} is not a non-negative integer", at())
+            })?),
+            None => None,
+        };
+        rows.push(Row {
+            number: rows.len() as u64 + 1,
+            source: source.to_string(),
+            target: target.to_string(),
+            source_path: resolve(source),
+            target_path: resolve(target),
+            init,
+            seed,
+        });
+    }
+    if rows.is_empty() {
+        bail!("{}: no pairs listed", path.display());
+    }
+    Ok(rows)
+}
+
+/// Opens the output to append to: a new file with its header, or (resuming) an existing one
+/// checked against this batch, with a last line cut short by a kill removed. Returns the
+/// rows it already holds (and whether each registered).
+fn open_output(
+    a: &BatchArgs,
+    pairs_name: &str,
+    rows: &[Row],
+    settings: &RegisterSettings,
+) -> Result<(File, HashMap<u64, bool>)> {
+    let path = &a.output;
+    let context = || path.display().to_string();
+    let existing = match std::fs::read(path) {
+        Ok(bytes) if !a.force => Some(bytes),
+        Ok(_) => None,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(anyhow::Error::new(e).context(context())),
+    };
+    let log = match &existing {
+        Some(bytes) => read_batch_log(bytes, path)?,
+        None => None,
+    };
+    let Some(log) = log else {
+        let mut file = File::create(path).with_context(context)?;
+        file.write_all(header_line(pairs_name, settings).as_bytes())
+            .with_context(context)?;
+        return Ok((file, HashMap::new()));
+    };
+    check_resumable(&log, path, pairs_name, rows, settings)?;
+    let file = OpenOptions::new()
+        .write(true)
+        .open(path)
+        .with_context(context)?;
+    let len = existing.map_or(0, |b| b.len());
+    if log.complete_len < len {
+        eprintln!(
+            "sdfreg: {}: dropping an incomplete last line ({} bytes) left by an interrupted run",
+            path.display(),
+            len - log.complete_len
+        );
+        file.set_len(log.complete_len as u64)
+            .with_context(context)?;
+    }
+    let mut file = file;
+    std::io::Seek::seek(&mut file, std::io::SeekFrom::End(0)).with_context(context)?;
+    let done = log.finished.iter().map(|f| (f.row, f.ok)).collect();
+    Ok((file, done))
+}
+
+/// A results file is resumed only by the batch that began it: the same pairs file, the same
+/// rows, the same settings (the thread count aside).
+fn check_resumable(
+    log: &BatchLog,
+    path: &Path,
+    pairs_name: &str,
+    rows: &[Row],
+    settings: &RegisterSettings,
+) -> Result<()> {
+    let other = "pass --force to start it afresh, or choose another --output";
+    if log.pairs != pairs_name {
+        bail!(
+            "{}: holds the results of {}, not of {pairs_name}; {other}",
+            path.display(),
+            log.pairs
+        );
+    }
+    let groups = |s: &RegisterSettings| {
+        let s = RegisterSettings {
+            threads: 0,
+            ..s.clone()
+        };
+        serde_json::to_value(s).unwrap_or_default()
+    };
+    let (then, now) = (groups(&log.settings), groups(settings));
+    if then != now {
+        let differ: Vec<&String> = then
+            .as_object()
+            .into_iter()
+            .flatten()
+            .filter(|(k, v)| now.get(k.as_str()) != Some(v))
+            .map(|(k, _)| k)
+            .collect();
+        bail!(
+            "{}: was begun with other settings (differing: {}); {other}",
+            path.display(),
+            differ
+                .iter()
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    let by_number: HashMap<u64, &Row> = rows.iter().map(|r| (r.number, r)).collect();
+    for f in &log.finished {
+        match by_number.get(&f.row) {
+            Some(r) if r.source == f.source && r.target == f.target => {}
+            Some(r) => bail!(
+                "{}:{}: row {} was {} → {}, the pairs file now says {} → {}; {other}",
+                path.display(),
+                f.line,
+                f.row,
+                f.source,
+                f.target,
+                r.source,
+                r.target
+            ),
+            None => bail!(
+                "{}:{}: row {} is not in the pairs file any more; {other}",
+                path.display(),
+                f.line,
+                f.row
+            ),
+        }
+    }
+    Ok(())
+}
