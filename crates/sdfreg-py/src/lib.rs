@@ -10,6 +10,7 @@
 //!
 //! Stubs and docstrings for Python users: `python/sdfreg/_sdfreg.pyi`.
 
+mod batch;
 mod convert;
 mod error;
 mod model;
@@ -20,13 +21,12 @@ use std::path::PathBuf;
 
 use numpy::PyArray2;
 use pyo3::prelude::*;
-use sdfreg_core::RegisterSettings;
 
 use model::PySdfModel;
 use registration::{PyFreeMotion, PyRegistration};
 use settings::{
-    IntoSetting, PyCoarseToFineSettings, PyFitSettings, PyLmSettings, PyMlpSettings,
-    PyMultistartSettings, PyPolishSettings, PyRobustSettings, PyShiftSearchSettings,
+    PyCoarseToFineSettings, PyFitSettings, PyLmSettings, PyMlpSettings, PyMultistartSettings,
+    PyPolishSettings, PyRobustSettings, PyShiftSearchSettings, SettingsArgs,
 };
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
@@ -118,40 +118,24 @@ fn register(
         Err(_) => Target::Cloud(convert::points(target, "target")?),
     };
     let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
-    let preset = preset.unwrap_or("default");
-    let mut s = RegisterSettings::preset(preset).ok_or_else(|| {
-        error::argument(
-            "preset",
-            format!(
-                "expected one of {:?}, got {preset:?}",
-                RegisterSettings::PRESETS
-            ),
-        )
-    })?;
-    s.seed = seed.into_setting("seed")?;
-    s.threads = threads.into_setting("threads")?;
-    if let Some(r) = robust {
-        s.robust = settings::robust_argument(r)?;
+    let s = SettingsArgs {
+        preset: preset.map(str::to_string),
+        robust: robust.cloned(),
+        seed,
+        threads,
+        max_source_points,
+        max_target_points,
+        inlier_distance,
+        free_motion_ratio,
+        mlp: mlp.map(|g| g.0.clone()),
+        fit: fit.map(|g| g.0.clone()),
+        multistart: multistart.map(|g| g.0.clone()),
+        coarse_to_fine: coarse_to_fine.map(|g| g.0.clone()),
+        lm: lm.map(|g| g.0.clone()),
+        polish: polish.map(|g| g.0.clone()),
+        shift_search: shift_search.map(|g| g.0.clone()),
     }
-    if let Some(n) = max_source_points {
-        s.max_source_points = n.into_setting("max_source_points")?;
-    }
-    if let Some(n) = max_target_points {
-        s.max_target_points = n.into_setting("max_target_points")?;
-    }
-    s.inlier_distance = inlier_distance.unwrap_or(s.inlier_distance);
-    s.free_motion_ratio = free_motion_ratio.unwrap_or(s.free_motion_ratio);
-    s.mlp = mlp.as_ref().map_or(s.mlp, |g| g.0.clone());
-    s.fit = fit.as_ref().map_or(s.fit, |g| g.0.clone());
-    s.multistart = multistart.as_ref().map_or(s.multistart, |g| g.0.clone());
-    s.coarse_to_fine = coarse_to_fine
-        .as_ref()
-        .map_or(s.coarse_to_fine, |g| g.0.clone());
-    s.lm = lm.as_ref().map_or(s.lm, |g| g.0.clone());
-    s.polish = polish.as_ref().map_or(s.polish, |g| g.0.clone());
-    s.shift_search = shift_search
-        .as_ref()
-        .map_or(s.shift_search, |g| g.0.clone());
+    .build()?;
     let result = py
         .detach(|| match &target {
             Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),
@@ -239,6 +223,7 @@ fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -
 #[pymodule]
 fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(register, m)?)?;
+    m.add_function(wrap_pyfunction!(batch::register_many, m)?)?;
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;

@@ -457,3 +457,124 @@ pub fn core_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
         .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
     py.import("json")?.call_method1("loads", (json,))
 }
+
+/// The settings keywords of `register` and `register_many`, before they are applied to the
+/// preset: each `None` keeps the preset's value.
+#[derive(Default)]
+pub struct SettingsArgs<'py> {
+    pub preset: Option<String>,
+    pub robust: Option<Bound<'py, PyAny>>,
+    pub seed: i64,
+    pub threads: i64,
+    pub max_source_points: Option<i64>,
+    pub max_target_points: Option<i64>,
+    pub inlier_distance: Option<f64>,
+    pub free_motion_ratio: Option<f64>,
+    pub mlp: Option<sdfreg_core::MlpSettings>,
+    pub fit: Option<sdfreg_core::FitSettings>,
+    pub multistart: Option<sdfreg_core::MultistartSettings>,
+    pub coarse_to_fine: Option<sdfreg_core::CoarseToFineSettings>,
+    pub lm: Option<sdfreg_core::LmSettings>,
+    pub polish: Option<sdfreg_core::PolishSettings>,
+    pub shift_search: Option<sdfreg_core::ShiftSearchSettings>,
+}
+
+impl<'py> SettingsArgs<'py> {
+    /// The settings keywords of `kwargs` (`register_many(pairs, **settings)`); a keyword that
+    /// names no setting is a `TypeError`, as Python raises for any function.
+    pub fn from_kwargs(function: &str, kwargs: Option<&Bound<'py, PyDict>>) -> PyResult<Self> {
+        let mut a = SettingsArgs::default();
+        let Some(kwargs) = kwargs else {
+            return Ok(a);
+        };
+        for (key, value) in kwargs.iter() {
+            let key: String = key.extract()?;
+            let none = value.is_none();
+            match key.as_str() {
+                "preset" => a.preset = value.extract()?,
+                "robust" => a.robust = (!none).then(|| value.clone()),
+                "seed" => a.seed = value.extract()?,
+                "max_source_points" => a.max_source_points = value.extract()?,
+                "max_target_points" => a.max_target_points = value.extract()?,
+                "inlier_distance" => a.inlier_distance = value.extract()?,
+                "free_motion_ratio" => a.free_motion_ratio = value.extract()?,
+                "mlp" => a.mlp = group::<PyMlpSettings, _>(&value, |g| g.0.clone())?,
+                "fit" => a.fit = group::<PyFitSettings, _>(&value, |g| g.0.clone())?,
+                "multistart" => {
+                    a.multistart = group::<PyMultistartSettings, _>(&value, |g| g.0.clone())?
+                }
+                "coarse_to_fine" => {
+                    a.coarse_to_fine = group::<PyCoarseToFineSettings, _>(&value, |g| g.0.clone())?
+                }
+                "lm" => a.lm = group::<PyLmSettings, _>(&value, |g| g.0.clone())?,
+                "polish" => a.polish = group::<PyPolishSettings, _>(&value, |g| g.0.clone())?,
+                "shift_search" => {
+                    a.shift_search = group::<PyShiftSearchSettings, _>(&value, |g| g.0.clone())?
+                }
+                _ => {
+                    return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+                        "{function}() got an unexpected keyword argument '{key}'"
+                    )))
+                }
+            }
+        }
+        Ok(a)
+    }
+
+    /// The preset named (default: `"default"`) with every given keyword applied; a
+    /// `ValueError` names a bad preset or value.
+    pub fn build(self) -> PyResult<RegisterSettings> {
+        let preset = self.preset.as_deref().unwrap_or("default");
+        let mut s = RegisterSettings::preset(preset).ok_or_else(|| {
+            error::argument(
+                "preset",
+                format!(
+                    "expected one of {:?}, got {preset:?}",
+                    RegisterSettings::PRESETS
+                ),
+            )
+        })?;
+        s.seed = self.seed.into_setting("seed")?;
+        s.threads = self.threads.into_setting("threads")?;
+        if let Some(r) = &self.robust {
+            s.robust = robust_argument(r)?;
+        }
+        if let Some(n) = self.max_source_points {
+            s.max_source_points = n.into_setting("max_source_points")?;
+        }
+        if let Some(n) = self.max_target_points {
+            s.max_target_points = n.into_setting("max_target_points")?;
+        }
+        s.inlier_distance = self.inlier_distance.unwrap_or(s.inlier_distance);
+        s.free_motion_ratio = self.free_motion_ratio.unwrap_or(s.free_motion_ratio);
+        s.mlp = self.mlp.unwrap_or(s.mlp);
+        s.fit = self.fit.unwrap_or(s.fit);
+        s.multistart = self.multistart.unwrap_or(s.multistart);
+        s.coarse_to_fine = self.coarse_to_fine.unwrap_or(s.coarse_to_fine);
+        s.lm = self.lm.unwrap_or(s.lm);
+        s.polish = self.polish.unwrap_or(s.polish);
+        s.shift_search = self.shift_search.unwrap_or(s.shift_search);
+        Ok(s)
+    }
+}
+
+/// A settings-group keyword: an instance of its class `G`, or None.
+fn group<'py, G, T>(value: &Bound<'py, PyAny>, take: impl Fn(&G) -> T) -> PyResult<Option<T>>
+where
+    G: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync,
+{
+    if value.is_none() {
+        return Ok(None);
+    }
+    let g = value.cast::<G>().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err(format!(
+            "expected a {} or None, got {}",
+            G::NAME,
+            value
+                .get_type()
+                .name()
+                .map_or("?".into(), |n| n.to_string())
+        ))
+    })?;
+    Ok(Some(take(g.get())))
+}

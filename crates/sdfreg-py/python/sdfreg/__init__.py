@@ -6,7 +6,8 @@ frame. Clouds are (N, 3) arrays of float32 or float64 in any units, or Open3D po
 Tuning goes in settings objects, one per stage: ``register(s, t, lm=LmSettings(max_tries=10))``;
 ``preset="scans"`` suits scans that overlap only in part. ``fit(target)`` fits the target's
 SDF once; ``register(source, model)`` then registers without fitting, and the model saves,
-loads and pickles.
+loads and pickles. ``register_many(pairs)`` registers many pairs on every core;
+``sdfreg.dask`` spreads them over a Dask cluster.
 """
 
 from ._sdfreg import (
@@ -26,6 +27,7 @@ from ._sdfreg import (
     load_model,
     read_point_cloud,
     register,
+    register_many,
     write_point_cloud,
 )
 
@@ -46,5 +48,6 @@ __all__ = [
     "load_model",
     "read_point_cloud",
     "register",
+    "register_many",
     "write_point_cloud",
 ]

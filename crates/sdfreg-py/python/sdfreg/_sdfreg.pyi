@@ -1,7 +1,18 @@
 """Native part of sdfreg (Rust, pyo3). Import from ``sdfreg``, not from here."""
 
 import os
-from typing import Any, Dict, Iterable, List, Optional, Protocol, Tuple, Union, final
+from typing import (
+    Any,
+    Callable,
+    Dict,
+    Iterable,
+    List,
+    Optional,
+    Protocol,
+    Tuple,
+    Union,
+    final,
+)
 
 import numpy as np
 import numpy.typing as npt
@@ -27,6 +38,7 @@ __all__ = [
     "_core_defaults",
     "read_point_cloud",
     "register",
+    "register_many",
     "write_point_cloud",
 ]
 
@@ -427,6 +439,63 @@ def register(
         ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
             fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
             setting is out of range.
+    """
+
+def register_many(
+    pairs: Iterable[
+        Union[
+            Tuple[
+                Union[npt.ArrayLike, _HasPoints], Union[npt.ArrayLike, _HasPoints, SdfModel]
+            ],
+            Tuple[
+                Union[npt.ArrayLike, _HasPoints],
+                Union[npt.ArrayLike, _HasPoints, SdfModel],
+                Optional[npt.ArrayLike],
+            ],
+        ]
+    ],
+    *,
+    threads: int = 0,
+    progress: Union[bool, Callable[[int, int], object]] = False,
+    preset: Optional[str] = None,
+    robust: Union[str, RobustSettings, None] = None,
+    seed: int = 0,
+    max_source_points: Optional[int] = None,
+    max_target_points: Optional[int] = None,
+    inlier_distance: Optional[float] = None,
+    free_motion_ratio: Optional[float] = None,
+    mlp: Optional[MlpSettings] = None,
+    fit: Optional[FitSettings] = None,
+    multistart: Optional[MultistartSettings] = None,
+    coarse_to_fine: Optional[CoarseToFineSettings] = None,
+    lm: Optional[LmSettings] = None,
+    polish: Optional[PolishSettings] = None,
+    shift_search: Optional[ShiftSearchSettings] = None,
+) -> List[Union[Registration, Exception]]:
+    """Registers many pairs at once, on every core: one pair per worker thread, each
+    registration single-threaded, the GIL released while they run.
+
+    Args:
+        pairs: An iterable of ``(source, target)`` or ``(source, target, init)``: clouds as
+            :func:`register` takes them, a target cloud or an :class:`SdfModel` (registered
+            against with Φ frozen; one model may serve many pairs), ``init`` a 4×4 or None.
+        threads: Pairs registered at once; 0 = one per core.
+        progress: True for a progress bar on stderr (tqdm's when it is installed), or a
+            callable ``progress(done, total)`` called after each pair, from this thread.
+        **settings: The settings keywords of :func:`register` (``preset``, ``robust``,
+            ``seed``, ``max_source_points``, …, the settings groups), the same for every pair.
+
+    Returns:
+        A list in the order of ``pairs``: each pair's :class:`Registration`, bit-identical to
+        ``register(source, target, init=init, **settings)``; or, for a pair that failed, the
+        exception ``register`` would have raised (``ValueError``), its message starting with
+        ``pair i:``. The others are not affected.
+
+    Raises:
+        ValueError: a setting is out of range (before any pair runs).
+        TypeError: ``pairs`` is not iterable, or a keyword names no setting.
+        KeyboardInterrupt: Ctrl-C; the pairs already running finish first (at most one per
+            worker).
     """
 
 @final
