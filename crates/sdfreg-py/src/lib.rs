@@ -231,6 +231,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(model::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(model::_model_from_bytes, m)?)?;
     m.add_function(wrap_pyfunction!(registration::_registration_from_json, m)?)?;
+    m.add_function(wrap_pyfunction!(settings::_settings_from_json, m)?)?;
     m.add_class::<PySdfModel>()?;
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyFreeMotion>()?;

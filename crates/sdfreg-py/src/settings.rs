@@ -89,6 +89,12 @@ macro_rules! settings_class {
         #[derive(Clone, PartialEq)]
         pub struct $py(pub sdfreg_core::$core);
 
+        impl $py {
+            fn check(s: &sdfreg_core::$core) -> PyResult<()> {
+                s.validate().map_err(error::registration)
+            }
+        }
+
         #[pymethods]
         impl $py {
             #[new]
@@ -111,8 +117,63 @@ macro_rules! settings_class {
             fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
                 repr($name, &[$((stringify!($field), self.0.$field.expose(py)?)),*])
             }
+
+            /// Pickles through the core struct's JSON (exact: floats round-trip).
+            fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Reduced<'py>> {
+                reduce(py, $name, &self.0)
+            }
         }
     };
+}
+
+/// What `__reduce__` returns: `_settings_from_json` and its arguments.
+type Reduced<'py> = (Bound<'py, PyAny>, (&'static str, String));
+
+fn reduce<'py>(
+    py: Python<'py>,
+    name: &'static str,
+    settings: &impl serde::Serialize,
+) -> PyResult<Reduced<'py>> {
+    let json = serde_json::to_string(settings)
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+    let load = py
+        .import("sdfreg._sdfreg")?
+        .getattr("_settings_from_json")?;
+    Ok((load, (name, json)))
+}
+
+/// Unpickles a settings object (`__reduce__`): the class `name` from its core struct's JSON,
+/// checked as the constructor checks it.
+#[pyfunction]
+pub fn _settings_from_json(py: Python<'_>, name: &str, json: &str) -> PyResult<Py<PyAny>> {
+    fn load<T: serde::de::DeserializeOwned>(json: &str) -> PyResult<T> {
+        serde_json::from_str(json)
+            .map_err(|e| error::argument("settings", format!("not valid settings JSON: {e}")))
+    }
+    // Each class from its JSON, validated as its constructor validates.
+    macro_rules! arms {
+        ($($class:literal => $py:ident),*) => {
+            match name {
+                $($class => {
+                    let settings = load(json)?;
+                    $py::check(&settings)?;
+                    Py::new(py, $py(settings))?.into_any()
+                })*
+                _ => return Err(error::argument("settings", format!("no settings class {name:?}"))),
+            }
+        };
+    }
+    let object = arms!(
+        "MlpSettings" => PyMlpSettings,
+        "FitSettings" => PyFitSettings,
+        "MultistartSettings" => PyMultistartSettings,
+        "CoarseToFineSettings" => PyCoarseToFineSettings,
+        "LmSettings" => PyLmSettings,
+        "PolishSettings" => PyPolishSettings,
+        "ShiftSearchSettings" => PyShiftSearchSettings,
+        "RobustSettings" => PyRobustSettings
+    );
+    Ok(object)
 }
 
 settings_class! {
@@ -292,6 +353,10 @@ settings_class! {
 pub struct PyRobustSettings(pub sdfreg_core::RobustSettings);
 
 impl PyRobustSettings {
+    fn check(s: &sdfreg_core::RobustSettings) -> PyResult<()> {
+        s.validate().map_err(error::registration)
+    }
+
     /// The re-run's fitness threshold, gain and tie (``mode="auto"``; the defaults otherwise).
     fn auto_rule(&self) -> (f64, f64, f64) {
         let auto = |m: RobustMode| match m {
@@ -407,6 +472,11 @@ impl PyRobustSettings {
     #[getter]
     fn floor(&self) -> f64 {
         self.0.floor
+    }
+
+    /// Pickles through the core struct's JSON (exact: floats round-trip).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Reduced<'py>> {
+        reduce(py, "RobustSettings", &self.0)
     }
 
     fn __repr__(&self, py: Python<'_>) -> PyResult<String> {

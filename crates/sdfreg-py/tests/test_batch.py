@@ -100,3 +100,27 @@ def test_progress_true_draws_a_bar_on_stderr(pairs, model, capsys, monkeypatch) 
     sdfreg.register_many([(s, model)] * 2, progress=True, **QUICK)
     err = capsys.readouterr().err
     assert "register_many: 2/2 pairs" in err and "pairs/s" in err, err
+
+
+def test_settings_objects_pickle_exactly() -> None:
+    import pickle
+
+    objects = [
+        sdfreg.FitSettings(prefit_steps=123, prefit_lr=0.0031),
+        sdfreg.MlpSettings(width=16),
+        sdfreg.RobustSettings(mode="fixed", scale=0.02),
+        sdfreg.RobustSettings(mode="auto", below_fitness=0.5),
+        sdfreg.LmSettings(max_tries=7),
+        sdfreg.MultistartSettings(enabled=False),
+        sdfreg.CoarseToFineSettings(alternations=2),
+        sdfreg.PolishSettings(),
+        sdfreg.ShiftSearchSettings(),
+    ]
+    for o in objects:
+        back = pickle.loads(pickle.dumps(o))
+        assert type(back) is type(o) and back == o and repr(back) == repr(o)
+    with pytest.raises(ValueError, match="invalid setting `lm.max_tries`"):
+        _, (name, json) = objects[4].__reduce__()
+        sdfreg._sdfreg._settings_from_json(name, json.replace('"max_tries":7', '"max_tries":0'))
+    with pytest.raises(ValueError, match='no settings class "Nope"'):
+        sdfreg._sdfreg._settings_from_json("Nope", "{}")

@@ -33,6 +33,7 @@ __all__ = [
     "__version__",
     "_model_from_bytes",
     "_registration_from_json",
+    "_settings_from_json",
     "fit",
     "load_model",
     "_core_defaults",
@@ -617,6 +618,9 @@ def _model_from_bytes(data: bytes) -> SdfModel:
 
 def _registration_from_json(json: str) -> Registration:
     """A registration from its JSON (unpickling)."""
+
+def _settings_from_json(name: str, json: str) -> Any:
+    """A settings object of the class ``name`` from its JSON (unpickling)."""
 
 def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.NDArray[np.float64]:
     """Reads a point cloud as an (N, 3) float64 array.
