@@ -1,7 +1,7 @@
 //! Many pairs at once: every core busy, one pair per worker.
 //!
 //! One registration uses two threads well but leaves a larger machine idle, and a dataset is
-//! aligned by the thousand. The pairs run on a pool of their own, each pair on one worker (its
+//! aligned by the thousand. The pairs run on worker threads of their own, each pair on one worker (its
 //! registration single-threaded), so the cores work on different pairs instead of sharing one.
 //! Each result is bit-identical to registering that pair alone with the same settings and seed
 //! (a result never depends on the thread count); a pair that fails gives its error in its place
@@ -17,7 +17,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
 use nalgebra::{Isometry3, Point3};
-use rayon::iter::{ParallelBridge, ParallelIterator};
 
 use crate::error::Error;
 use crate::model::SdfModel;
@@ -103,8 +102,7 @@ impl<'a> Pair<'a> {
 
 /// Registers every pair with `settings` on `threads` workers (0 = one per core), one pair per
 /// worker; results in input order, each equal to `pair.register(settings)` (see the module
-/// docs). `settings.threads` is not read. Fails as a whole only for invalid settings or a pool
-/// that cannot be made.
+/// docs). `settings.threads` is not read. Fails as a whole only for invalid settings.
 pub fn register_many(
     pairs: &[Pair<'_>],
     settings: &RegisterSettings,
@@ -129,13 +127,13 @@ pub fn register_many(
 
 /// Registers the keyed pairs `pairs` yields with `settings` on `threads` workers (0 = one per
 /// core), one pair per worker, and calls `done(key, result)` as each finishes (in the order
-/// they finish, from the worker threads). The iterator is pulled only when a worker is free,
-/// so it may read each pair's clouds as it is asked for them.
+/// they finish, from the worker threads). The iterator is pulled only when a worker is free
+/// (by one worker at a time), so it may read each pair's clouds as it is asked for them.
 ///
 /// Once `stop` is set, no further pair is started; the pairs already running finish and are
 /// reported, then the call returns. Each result equals `pair.register(settings)`;
-/// `settings.threads` is not read. Fails as a whole only for invalid settings or a pool that
-/// cannot be made (before any pair runs).
+/// `settings.threads` is not read. Fails as a whole only for invalid settings (before any pair
+/// runs).
 pub fn register_each<'a, K, I, D>(
     pairs: I,
     settings: &RegisterSettings,
@@ -154,18 +152,28 @@ where
         threads: 1,
         ..settings.clone()
     };
-    let mut pairs = pairs.into_iter();
-    // Checks `stop` before asking for the next pair, so a stopped batch reads no more input.
-    let until_stopped = std::iter::from_fn(move || {
+    let workers = match threads {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        n => n,
+    };
+    // Plain threads, each taking the next pair when it is free. (Not a rayon pool: a pair's
+    // registration runs in a pool of its own, and a rayon worker waiting on another pool steals
+    // further pairs meanwhile, so more pairs would run at once than there are workers.)
+    let pairs = Mutex::new(pairs.into_iter());
+    let next = || {
         if stop.load(Ordering::Relaxed) {
-            None
-        } else {
-            pairs.next()
+            return None;
+        }
+        pairs.lock().unwrap_or_else(|e| e.into_inner()).next()
+    };
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            scope.spawn(|| {
+                while let Some((key, pair)) = next() {
+                    done(key, pair.register(&one));
+                }
+            });
         }
     });
-    crate::register::in_pool(threads, || {
-        until_stopped
-            .par_bridge()
-            .for_each(|(key, pair)| done(key, pair.register(&one)))
-    })
+    Ok(())
 }

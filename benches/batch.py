@@ -1,0 +1,231 @@
+"""Many pairs: register_many against a loop of register, a process pool, Dask and `sdfreg batch`.
+
+    scripts/python-env                          # once: the venv with the wheel, dask (and ray)
+    cargo build --release -p sdfreg-cli         # for the `sdfreg batch` row
+    .venv/bin/python benches/batch.py --data ../shared/data [--pairs 64] [--protocol clean]
+    .venv/bin/python benches/batch.py --stress 10000     # 10⁴ rows through `sdfreg batch`
+
+Throughput (the default): the pairs of the paper's protocol (`sdfreg eval --write-pairs` over
+ModelNet40 in --data; procedural blobs with a message when it is missing), registered in one
+run five ways, each with the default settings and seed 0:
+- a loop of `sdfreg.register(source, target)` (threads=0: each call on every core);
+- `sdfreg.register_many(pairs)` (one pair per worker, one worker per core);
+- a `ProcessPoolExecutor` with one process per core, `register(..., threads=1)` in each;
+- `sdfreg.dask.register_pairs` on a `LocalCluster(n_workers=cores, threads_per_worker=1)` (the
+  cluster's start-up not counted); the scheduler's overhead per pair is its time less
+  register_many's, over the pairs, and also measured with empty tasks;
+- `sdfreg batch PAIRS.csv` (reading the files included).
+Prints pairs per second for each, the ratios to the loop, and checks that every way gives the
+same transformations as the loop, bit for bit.
+
+--stress N: N rows (16 distinct 512-point sources, against one stored model) through
+`sdfreg batch`: runs 1/10 of them and all of them, each in a fresh output, and prints each run's
+peak RSS (memory stays flat when the second is no larger); then a third run killed halfway and
+resumed, checking every row is in the output exactly once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import json
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import sdfreg
+from common import blob, euler_xyz, pose_errors
+
+ROOT = Path(__file__).resolve().parents[1]
+CLI = Path(os.environ.get("SDFREG_CLI", ROOT / "target/release/sdfreg"))
+
+
+def write_pairs(data: Path, protocol: str, n: int, out: Path) -> list[tuple[Path, Path, np.ndarray]]:
+    """The protocol's pairs as files (source.ply, target.ply, the truth)."""
+    shapes = data / "modelnet40-half1"
+    if shapes.is_dir() and CLI.exists():
+        subprocess.run(
+            [CLI, "eval", "--shapes", shapes, "--protocol", protocol, "--pairs", str(n),
+             "--write-pairs", out, "--pairs-only"],
+            check=True, capture_output=True,
+        )
+        listing = json.loads((out / "pairs.json").read_text())["pairs"]
+        return [
+            (out / p["dir"] / "source.ply", out / p["dir"] / "target.ply", np.array(p["t_target_source"]))
+            for p in listing
+        ]
+    print(f"batch.py: no {shapes} (or no {CLI}): procedural blobs under the paper's protocol instead")
+    pairs = []
+    for k in range(n):
+        rng = np.random.default_rng(k)
+        target = blob(1024, rng)
+        truth = np.eye(4)
+        truth[:3, :3], truth[:3, 3] = euler_xyz(rng.uniform(0, 45, 3)), rng.uniform(-0.5, 0.5, 3)
+        source = (target - truth[:3, 3]) @ truth[:3, :3]
+        d = out / f"{k:03d}"
+        d.mkdir(parents=True)
+        sdfreg.write_point_cloud(d / "source.ply", source)
+        sdfreg.write_point_cloud(d / "target.ply", target)
+        pairs.append((d / "source.ply", d / "target.ply", truth))
+    return pairs
+
+
+def register_alone(pair: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    return sdfreg.register(*pair, threads=1).transformation
+
+
+def noop(x: int) -> int:
+    return x
+
+
+def throughput(args: argparse.Namespace) -> None:
+    from dask.distributed import Client, LocalCluster
+
+    import sdfreg.dask
+
+    cores = os.cpu_count() or 1
+    work = Path(tempfile.mkdtemp(prefix="sdfreg-batch-bench-"))
+    try:
+        files = write_pairs(args.data, args.protocol, args.pairs, work / "pairs")
+        clouds = [(sdfreg.read_point_cloud(s), sdfreg.read_point_cloud(t)) for s, t, _ in files]
+        n = len(clouds)
+        rows: dict[str, float] = {}
+
+        start = time.perf_counter()
+        loop = [sdfreg.register(s, t).transformation for s, t in clouds]
+        rows["loop of register (threads=0)"] = time.perf_counter() - start
+
+        start = time.perf_counter()
+        many = sdfreg.register_many(clouds)
+        rows["register_many"] = time.perf_counter() - start
+
+        start = time.perf_counter()
+        with concurrent.futures.ProcessPoolExecutor(cores) as pool:
+            pooled = list(pool.map(register_alone, clouds))
+        rows[f"process pool ({cores} processes)"] = time.perf_counter() - start
+
+        cluster = LocalCluster(n_workers=cores, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        with Client(cluster) as client:
+            client.gather(client.map(noop, range(cores)))  # workers warm
+            start = time.perf_counter()
+            client.gather(client.map(noop, range(1000), pure=False))
+            empty = (time.perf_counter() - start) / 1000
+            start = time.perf_counter()
+            dasked = sdfreg.dask.register_pairs(client, clouds)
+            rows[f"dask LocalCluster ({cores} workers)"] = time.perf_counter() - start
+        cluster.close()
+
+        csv = work / "pairs.csv"
+        csv.write_text("".join(f"{s},{t}\n" for s, t, _ in files))
+        start = time.perf_counter()
+        run = subprocess.run([CLI, "batch", csv, "--output", work / "out.jsonl"], capture_output=True, text=True)
+        rows["sdfreg batch (CLI)"] = time.perf_counter() - start
+        if run.returncode != 0:
+            sys.exit(f"sdfreg batch failed: {run.stderr}")
+        records = [json.loads(l) for l in (work / "out.jsonl").read_text().splitlines()[1:]]
+        batched = [np.array(r["transformation"]) for r in sorted(records, key=lambda r: r["row"])]
+
+        for name, got in [("register_many", [r.transformation for r in many]), ("process pool", pooled),
+                          ("dask", [r.transformation for r in dasked]), ("sdfreg batch", batched)]:
+            same = all(np.array_equal(a, b) for a, b in zip(loop, got)) and len(got) == n
+            print(f"{name:>14}: transformations {'bit-identical to' if same else 'DIFFER from'} the loop's")
+        errors = [pose_errors(m, truth)[0] for m, (_, _, truth) in zip(loop, files)]
+        print(f"{n} pairs ({args.protocol}), mean rotation error {np.mean(errors):.3f}°, "
+              f"{sum(e < 5 for e in errors)}/{n} under 5°; {cores} cores, CPU flags: {cpu_flags()}")
+        base = rows["loop of register (threads=0)"]
+        print(f"{'way':<34} {'s':>7} {'pairs/s':>8} {'× loop':>7}")
+        for name, seconds in rows.items():
+            print(f"{name:<34} {seconds:7.1f} {n / seconds:8.2f} {base / seconds:7.2f}")
+        dask_s = rows[f"dask LocalCluster ({cores} workers)"]
+        print(f"dask overhead per pair: {(dask_s - rows['register_many']) / n * 1e3:.1f} ms against register_many; "
+              f"an empty task costs {empty * 1e3:.2f} ms")
+    finally:
+        shutil.rmtree(work)
+
+
+def cpu_flags() -> str:
+    try:
+        flags = next(l for l in Path("/proc/cpuinfo").read_text().splitlines() if l.startswith("flags")).split()
+    except (OSError, StopIteration):
+        return "unknown"
+    return " ".join(f for f in ("avx512f", "avx2", "fma") if f in flags) or "none of avx512f avx2 fma"
+
+
+def batch_run(csv: Path, out: Path, kill_after: int | None = None) -> tuple[float, float]:
+    """Runs `sdfreg batch`; (seconds, peak RSS in MiB of the child). With kill_after, SIGKILLs it
+    once that many records are in the output."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    start = time.perf_counter()
+    proc = subprocess.Popen([CLI, "batch", csv, "--output", out], stderr=subprocess.DEVNULL)
+    if kill_after is not None:
+        while proc.poll() is None:
+            if out.exists() and out.read_bytes().count(b"\n") > kill_after:
+                proc.send_signal(signal.SIGKILL)
+                break
+            time.sleep(0.05)
+    proc.wait()
+    seconds = time.perf_counter() - start
+    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    if kill_after is None and proc.returncode != 0:
+        sys.exit(f"sdfreg batch exited {proc.returncode}")
+    # ru_maxrss of children is the largest of any child so far: a larger child raises it.
+    return seconds, max(peak, before) / 1024
+
+
+def stress(n: int) -> None:
+    work = Path(tempfile.mkdtemp(prefix="sdfreg-batch-stress-"))
+    try:
+        rng = np.random.default_rng(0)
+        target = blob(4096, rng)
+        sdfreg.fit(target).save(work / "model.sdfm")
+        for k in range(16):
+            truth_r = euler_xyz(rng.uniform(0, 45, 3))
+            source = (blob(512, np.random.default_rng(100 + k)) - rng.uniform(-0.5, 0.5, 3)) @ truth_r
+            sdfreg.write_point_cloud(work / f"s{k:02d}.ply", source)
+        for rows in (n // 10, n):
+            csv = work / f"pairs{rows}.csv"
+            csv.write_text("".join(f"s{k % 16:02d}.ply,model.sdfm\n" for k in range(rows)))
+            seconds, rss = batch_run(csv, work / f"out{rows}.jsonl")
+            print(f"{rows:>6} rows: {seconds:6.1f} s, {rows / seconds:6.1f} pairs/s, peak RSS {rss:6.1f} MiB "
+                  f"(the largest child so far)")
+        csv = work / f"pairs{n}.csv"
+        out = work / "killed.jsonl"
+        seconds, _ = batch_run(csv, out, kill_after=n // 2)
+        done = out.read_bytes().count(b"\n") - 1
+        print(f"killed after {seconds:.1f} s with {done} rows in the output; resuming …")
+        run = subprocess.run([CLI, "batch", csv, "--output", out], capture_output=True, text=True)
+        print("  " + run.stderr.strip().replace("\n", "\n  "))
+        lines = out.read_text().splitlines()[1:]
+        row_ids = [json.loads(l)["row"] for l in lines]
+        ok = sorted(row_ids) == list(range(1, n + 1))
+        print(f"after resuming: {len(row_ids)} records, every row exactly once: {ok}")
+    finally:
+        shutil.rmtree(work)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=ROOT.parent / "shared/data")
+    parser.add_argument("--pairs", type=int, default=64)
+    parser.add_argument("--protocol", default="clean")
+    parser.add_argument("--stress", type=int, metavar="N")
+    args = parser.parse_args()
+    if not CLI.exists():
+        sys.exit(f"batch.py: {CLI} not found: cargo build --release -p sdfreg-cli (or set SDFREG_CLI)")
+    if args.stress:
+        stress(args.stress)
+    else:
+        throughput(args)
+
+
+if __name__ == "__main__":
+    main()
