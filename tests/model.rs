@@ -200,3 +200,52 @@ fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
     assert_eq!(keys, ["pair 0", "pair 1"]);
     assert!(results.iter().all(|(_, fitness)| *fitness > 0.99));
 }
+
+#[test]
+fn a_mesh_is_its_own_exact_distance_field_and_registers_without_fitting() {
+    use sdfreg_core::MeshModel;
+    let s = RegisterSettings::default();
+    let (vertices, triangles) = shapes::blob_mesh(48);
+    let model = MeshModel::new(&vertices, &triangles, &s).unwrap();
+    assert!(
+        model.is_signed(),
+        "a closed, outward-wound mesh gives a signed field"
+    );
+    // Exact distances: a vertex pushed out along the direction from the centre by 0.05 is
+    // about 0.05 away (less where the surface slopes), one pulled in is negative.
+    let v = vertices[500];
+    let out = Point3::from(v.coords * 1.1);
+    let inside = Point3::from(v.coords * 0.9);
+    let d = model.distance(&[v, out, inside]);
+    assert!(d[0].abs() < 1e-6, "on the surface: {}", d[0]);
+    assert!(
+        d[1] > 0.0 && d[1] <= 0.1 * v.coords.norm() + 1e-6,
+        "{}",
+        d[1]
+    );
+    assert!(
+        d[2] < 0.0 && d[2] >= -0.1 * v.coords.norm() - 1e-6,
+        "{}",
+        d[2]
+    );
+    let back = model.closest_points(&[out]);
+    let again = model.distance(&back);
+    assert!(
+        again[0].abs() < 1e-5,
+        "the closest point is on the surface: {}",
+        again[0]
+    );
+    // A scan-like source (independent surface samples, moved) registers onto it from any start.
+    let truth = motion(35.0, [0.2, -0.1, 0.15]);
+    let cloud = shapes::blob(1500, &mut ChaCha8Rng::seed_from_u64(8));
+    let source = moved(&cloud, &truth.inverse());
+    let r = model.register(&source, None, &s).unwrap();
+    let (rot, trans) = pose_errors(&r.t_target_source, &truth);
+    assert!(rot < 0.1 && trans < 1e-3, "{rot}° {trans}");
+    assert!(r.fitness > 0.99);
+    // Bad meshes are refused, naming the problem.
+    let bad = MeshModel::new(&vertices, &[[0, 1, vertices.len()]], &s).unwrap_err();
+    assert!(bad.to_string().contains("refers to vertex"), "{bad}");
+    let none = MeshModel::new(&vertices, &[], &s).unwrap_err();
+    assert_eq!(none.to_string(), "target mesh: no triangles");
+}

@@ -228,6 +228,10 @@ pub struct RegisterArgs {
     /// queries, as registering against the cloud does (slower, the same numbers as the cloud).
     #[arg(long)]
     pub refine: bool,
+    /// TARGET is a mesh (.ply with faces) used as its own exact distance field (the distance to
+    /// its triangles) instead of a fitted SDF: no fitting; for CAD models and reconstructions.
+    #[arg(long, conflicts_with = "refine")]
+    pub exact_mesh: bool,
     /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
     #[arg(long, short)]
     pub output: Option<PathBuf>,

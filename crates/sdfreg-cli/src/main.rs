@@ -22,7 +22,9 @@ use sdfreg_core::io::{
 };
 use sdfreg_core::mesh::sample_surface;
 use sdfreg_core::se3::{isometry_from_matrix, pose_errors};
-use sdfreg_core::{register_with_progress, RegisterSettings, Registration, Role, SdfModel, Stage};
+use sdfreg_core::{
+    register_with_progress, MeshModel, RegisterSettings, Registration, Role, SdfModel, Stage,
+};
 
 use output::{matrix_text, registration_json, summary_line};
 
@@ -328,7 +330,19 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     let source = read_cloud(&a.source, &a.input, a.common.seed)?;
     let init = a.init.as_deref().map(read_matrix).transpose()?;
     let settings = a.common.settings()?;
-    let r = if is_model(&a.target) {
+    let r = if a.exact_mesh {
+        let (vertices, triangles) = read_mesh(&a.target)?;
+        if triangles.is_empty() {
+            bail!(
+                "{}: --exact-mesh needs a mesh, but the file has no faces",
+                a.target.display()
+            );
+        }
+        let mesh = MeshModel::new(&vertices, &triangles, &settings)
+            .map_err(|e| name_cloud(e.into(), &a.source, &a.target))?;
+        mesh.register(&source, init.as_ref(), &settings)
+            .map_err(anyhow::Error::from)
+    } else if is_model(&a.target) {
         let model = SdfModel::load(&a.target)?;
         if a.refine {
             model.register_refined(&source, init.as_ref(), &settings)

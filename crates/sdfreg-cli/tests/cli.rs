@@ -767,3 +767,43 @@ fn a_killed_batch_loses_no_finished_pair_and_resumes_to_the_end() {
     let first = transformation(&after[&1]);
     assert!(after.values().all(|v| transformation(v) == first));
 }
+
+#[test]
+fn register_onto_a_meshs_exact_distance_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (vertices, triangles) = sdfreg_core::shapes::blob_mesh(40);
+    sdfreg_core::io::write_mesh(d.join("mesh.ply"), &vertices, &triangles).unwrap();
+    let m = Isometry3::from_parts(
+        Translation3::new(0.1, -0.05, 0.08),
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.2, -0.3, 0.25)),
+    );
+    let cloud = sdfreg_core::shapes::blob(1200, &mut rand_chacha::ChaCha8Rng::seed_from_u64(2));
+    write_xyz(
+        &d.join("scan.xyz"),
+        &cloud.iter().map(|p| m * p).collect::<Vec<_>>(),
+    );
+    let out = sdfreg()
+        .current_dir(d)
+        .args(["register", "scan.xyz", "mesh.ply", "--exact-mesh"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let estimate =
+        isometry_from_matrix(&parse_matrix(&String::from_utf8(out.stdout).unwrap())).unwrap();
+    let (rot, trans) = pose_errors(&estimate, &m.inverse());
+    assert!(rot < 0.1 && trans < 1e-3, "{rot}° {trans}");
+    // A cloud is not a mesh.
+    let out = sdfreg()
+        .current_dir(d)
+        .args(["register", "scan.xyz", "scan.xyz", "--exact-mesh"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("scan.xyz"), "{err}");
+}

@@ -19,6 +19,7 @@ use std::sync::Mutex;
 use nalgebra::{Isometry3, Point3};
 
 use crate::error::Error;
+use crate::mesh_field::MeshModel;
 use crate::model::SdfModel;
 use crate::{register, RegisterSettings, Registration};
 
@@ -29,6 +30,8 @@ pub enum PairTarget<'a> {
     Cloud(Cow<'a, [Point3<f64>]>),
     /// A stored model, Φ frozen ([`SdfModel::register`]); the same model may serve many pairs.
     Model(&'a SdfModel),
+    /// A mesh's exact distance field ([`MeshModel::register`]).
+    Mesh(&'a MeshModel),
 }
 
 /// One pair of a batch. The clouds are borrowed or owned ([`Cow`]), so an iterator may read
@@ -73,6 +76,7 @@ impl<'a> Pair<'a> {
             target: match &self.target {
                 PairTarget::Cloud(points) => PairTarget::Cloud(Cow::Borrowed(points)),
                 PairTarget::Model(model) => PairTarget::Model(model),
+                PairTarget::Mesh(mesh) => PairTarget::Mesh(mesh),
             },
             init: self.init,
             seed: self.seed,
@@ -96,6 +100,7 @@ impl<'a> Pair<'a> {
         match &self.target {
             PairTarget::Cloud(target) => register(&self.source, target, self.init.as_ref(), s),
             PairTarget::Model(model) => model.register(&self.source, self.init.as_ref(), s),
+            PairTarget::Mesh(mesh) => mesh.register(&self.source, self.init.as_ref(), s),
         }
     }
 }

@@ -15,11 +15,10 @@ use std::borrow::Cow;
 use nalgebra::{Isometry3, Point3};
 
 use crate::cloud::transformed_f32;
+use crate::field::{Field, Surface};
 use crate::lm::{Kernel, Lm, StopReason};
-use crate::mlp::Mlp;
 use crate::multistart::{least_motion, nn_score};
 use crate::robust::KernelPolicy;
-use crate::sdf_fit::SdfFitter;
 use crate::settings::{CoarseToFineSettings, RegisterSettings};
 use crate::Stage;
 
@@ -38,8 +37,8 @@ pub(crate) struct Alternated {
 /// stored model's) and only the LM steps run; with it, `fit` becomes a private copy the first
 /// time it is trained. [`crate::MultistartSettings::tie`] decides the halfway drop and the
 /// final pick.
-pub(crate) fn alternate(
-    fit: &mut Cow<'_, SdfFitter>,
+pub(crate) fn alternate<S: Surface>(
+    fit: &mut Cow<'_, S>,
     source: &[Point3<f64>],
     hypotheses: &[Isometry3<f64>],
     s: &RegisterSettings,
@@ -67,7 +66,7 @@ pub(crate) fn alternate(
                 kernels.push(Kernel::L2);
                 continue;
             }
-            let (phi, _) = fit.mlp().eval(&moved, false);
+            let (phi, _) = fit.phi().eval_points(&moved, false);
             let kernel = policy.kernel(&phi, kappa);
             if refine {
                 let scale = kernel.scale().unwrap_or(f64::INFINITY);
@@ -82,10 +81,10 @@ pub(crate) fn alternate(
             kernels.push(kernel);
         }
         if refine {
-            fit.to_mut().train(s.fit.refine_steps, s.fit.refine_lr);
+            fit.to_mut().refine(s.fit.refine_steps, s.fit.refine_lr);
         }
         for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
-            lm.run(fit.mlp(), source, kernel, c.lm_steps_per_alternation);
+            lm.run(fit.phi(), source, kernel, c.lm_steps_per_alternation);
         }
         progress(Stage::Alternation(k + 1, c.alternations));
         // Halfway, hypotheses that fit clearly worse than the best are dropped.
@@ -118,29 +117,29 @@ pub(crate) fn alternate(
 
 /// LM on the frozen Φ from `lm`'s pose until converged, at most
 /// [`CoarseToFineSettings::final_lm_steps`] steps, with the policy's final κ.
-pub(crate) fn final_lm(
-    fit: &SdfFitter,
+pub(crate) fn final_lm<S: Surface>(
+    fit: &S,
     source: &[Point3<f64>],
     lm: &mut Lm,
     c: &CoarseToFineSettings,
     policy: KernelPolicy,
 ) -> StopReason {
-    let kernel = kernel_at(fit.mlp(), source, &lm.pose, policy, policy.kappa_end());
-    lm.run(fit.mlp(), source, kernel, c.final_lm_steps)
+    let kernel = kernel_at(fit.phi(), source, &lm.pose, policy, policy.kappa_end());
+    lm.run(fit.phi(), source, kernel, c.final_lm_steps)
 }
 
 /// The policy's kernel for `source` (unit frame) moved by `pose`, with `kappa`: Φ is evaluated
 /// only when the scale is adaptive.
-pub(crate) fn kernel_at(
-    mlp: &Mlp,
+pub(crate) fn kernel_at<F: Field + ?Sized>(
+    phi: &F,
     source: &[Point3<f64>],
     pose: &Isometry3<f64>,
     policy: KernelPolicy,
     kappa: f64,
 ) -> Kernel {
     if matches!(policy, KernelPolicy::Adaptive { .. }) {
-        let (phi, _) = mlp.eval(&transformed_f32(source, pose), false);
-        policy.kernel(&phi, kappa)
+        let (values, _) = phi.eval_points(&transformed_f32(source, pose), false);
+        policy.kernel(&values, kappa)
     } else {
         policy.kernel(&[], kappa)
     }

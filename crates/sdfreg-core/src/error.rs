@@ -66,6 +66,9 @@ pub enum Error {
     /// The worker thread pool could not be created.
     #[error("could not create the thread pool: {0}")]
     ThreadPool(String),
+    /// A target mesh that cannot serve as a distance field.
+    #[error("target mesh: {0}")]
+    InvalidMesh(String),
 }
 
 impl Error {
@@ -75,6 +78,7 @@ impl Error {
             Error::TooFewPoints { role, .. }
             | Error::NonFinite { role, .. }
             | Error::NoExtent { role, .. } => Some(*role),
+            Error::InvalidMesh(_) => Some(Role::Target),
             _ => None,
         }
     }

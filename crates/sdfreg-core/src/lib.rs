@@ -62,9 +62,11 @@
 #![warn(missing_docs)]
 
 pub mod cloud;
+pub mod field;
 pub mod io;
 pub mod lm;
 pub mod mesh;
+pub mod mesh_field;
 pub mod mlp;
 pub mod sdf_fit;
 pub mod se3;
@@ -90,6 +92,7 @@ pub use batch::{register_each, register_many, Pair, PairTarget};
 pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use error::{Error, IoError, Role};
 pub use lm::{LmSettings, StopReason};
+pub use mesh_field::MeshModel;
 pub use mlp::MlpSettings;
 pub use model::SdfModel;
 pub use polish::{PolishSettings, SNAP_RATIO};

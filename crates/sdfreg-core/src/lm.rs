@@ -19,7 +19,8 @@ use rayon::prelude::*;
 
 use crate::cloud::transformed_f32;
 use crate::error::Error;
-use crate::mlp::{with_workspace, Mlp, BLOCK};
+use crate::field::Field;
+use crate::mlp::BLOCK;
 pub use crate::robust::Kernel;
 use crate::se3::exp_se3;
 use crate::settings::check;
@@ -115,9 +116,9 @@ pub fn jacobian_row(x: &Vector3<f64>, n: &Vector3<f64>) -> Vector6<f64> {
     Vector6::new(c.x, c.y, c.z, n.x, n.y, n.z)
 }
 
-/// Normal equations of the points `source` (unit frame) moved by `pose`.
-pub fn linearize(
-    mlp: &Mlp,
+/// Normal equations of the points `source` (unit frame) moved by `pose`, against `phi`.
+pub fn linearize<F: Field + ?Sized>(
+    phi: &F,
     source: &[Point3<f64>],
     pose: &Isometry3<f64>,
     kernel: Kernel,
@@ -125,25 +126,23 @@ pub fn linearize(
     let parts: Vec<Linearization> = source
         .par_chunks(BLOCK)
         .map(|chunk| {
-            with_workspace(|ws| {
-                let xs = transformed_f32(chunk, pose);
-                mlp.forward_block(&xs, true, ws);
-                let mut h = Matrix6::zeros();
-                let mut g = Vector6::zeros();
-                let mut cost = 0.0;
-                for (j, x) in xs.iter().enumerate() {
-                    let r = ws.value(j) as f64;
-                    let n = ws.gradient(j);
-                    let n = Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
-                    let x = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
-                    let jrow = jacobian_row(&x, &n);
-                    let (rho, w) = kernel.rho_weight(r);
-                    h += w * jrow * jrow.transpose();
-                    g += (w * r) * jrow;
-                    cost += rho;
-                }
-                Linearization { h, g, cost }
-            })
+            let xs = transformed_f32(chunk, pose);
+            let (mut values, mut grads) = (Vec::new(), Vec::new());
+            phi.eval_block(&xs, &mut values, Some(&mut grads));
+            let mut h = Matrix6::zeros();
+            let mut g = Vector6::zeros();
+            let mut cost = 0.0;
+            for ((x, &r), n) in xs.iter().zip(&values).zip(&grads) {
+                let r = r as f64;
+                let n = Vector3::new(n[0] as f64, n[1] as f64, n[2] as f64);
+                let x = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
+                let jrow = jacobian_row(&x, &n);
+                let (rho, w) = kernel.rho_weight(r);
+                h += w * jrow * jrow.transpose();
+                g += (w * r) * jrow;
+                cost += rho;
+            }
+            Linearization { h, g, cost }
         })
         .collect();
     parts.into_iter().fold(
@@ -161,17 +160,22 @@ pub fn linearize(
 }
 
 /// `Σ ρ(Φ(T pᵢ))` over `source` (unit frame), summed in fixed chunk order.
-pub fn cost(mlp: &Mlp, source: &[Point3<f64>], pose: &Isometry3<f64>, kernel: Kernel) -> f64 {
+pub fn cost<F: Field + ?Sized>(
+    phi: &F,
+    source: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    kernel: Kernel,
+) -> f64 {
     let parts: Vec<f64> = source
         .par_chunks(BLOCK)
         .map(|chunk| {
-            with_workspace(|ws| {
-                let xs = transformed_f32(chunk, pose);
-                mlp.forward_block(&xs, false, ws);
-                (0..xs.len())
-                    .map(|j| kernel.rho_weight(ws.value(j) as f64).0)
-                    .sum::<f64>()
-            })
+            let xs = transformed_f32(chunk, pose);
+            let mut values = Vec::new();
+            phi.eval_block(&xs, &mut values, None);
+            values
+                .iter()
+                .map(|&v| kernel.rho_weight(v as f64).0)
+                .sum::<f64>()
         })
         .collect();
     parts.into_iter().sum()
@@ -231,19 +235,19 @@ impl Lm {
         }
     }
 
-    /// Up to `max_steps` iterations against `mlp`, from the initial damping, until a step is
+    /// Up to `max_steps` iterations against `phi`, from the initial damping, until a step is
     /// below both tolerances or no damping lowers the cost. `MaxIterations` when the cap ran out
     /// (also for `max_steps` = 0).
-    pub fn run(
+    pub fn run<F: Field + ?Sized>(
         &mut self,
-        mlp: &Mlp,
+        phi: &F,
         source: &[Point3<f64>],
         kernel: Kernel,
         max_steps: usize,
     ) -> StopReason {
         self.lambda = self.settings.initial_lambda;
         for _ in 0..max_steps {
-            match self.step(mlp, source, kernel) {
+            match self.step(phi, source, kernel) {
                 StepOutcome::NoDecrease => return StopReason::NoDecrease,
                 outcome if self.is_converged(&outcome) => return StopReason::SmallStep,
                 _ => {}
@@ -252,10 +256,15 @@ impl Lm {
         StopReason::MaxIterations
     }
 
-    /// One LM iteration against `mlp`.
-    pub fn step(&mut self, mlp: &Mlp, source: &[Point3<f64>], kernel: Kernel) -> StepOutcome {
+    /// One LM iteration against `phi`.
+    pub fn step<F: Field + ?Sized>(
+        &mut self,
+        phi: &F,
+        source: &[Point3<f64>],
+        kernel: Kernel,
+    ) -> StepOutcome {
         self.iterations += 1;
-        let lin = linearize(mlp, source, &self.pose, kernel);
+        let lin = linearize(phi, source, &self.pose, kernel);
         self.cost = lin.cost;
         for _ in 0..self.settings.max_tries.max(1) {
             let mut a = lin.h;
@@ -267,7 +276,7 @@ impl Lm {
                 continue;
             };
             let candidate = exp_se3(&delta) * self.pose;
-            let c = cost(mlp, source, &candidate, kernel);
+            let c = cost(phi, source, &candidate, kernel);
             if c < lin.cost {
                 self.pose = candidate;
                 self.cost = c;
@@ -286,7 +295,7 @@ impl Lm {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mlp::MlpSettings;
+    use crate::mlp::{Mlp, MlpSettings};
     use rand::SeedableRng;
 
     #[test]

@@ -9,8 +9,8 @@ use rayon::prelude::*;
 
 use crate::cloud::Normalization;
 use crate::degeneracy::Degeneracy;
+use crate::field::Field;
 use crate::lm::jacobian_row;
-use crate::mlp::Mlp;
 use crate::sdf_fit::Tree;
 
 /// Fitness — the fraction of the (already moved) `points` within `sqrt(thr2)` of a target
@@ -45,9 +45,14 @@ pub(crate) struct Quality {
     pub degeneracy: Degeneracy,
 }
 
-/// [`Quality`] of the unit-frame `moved` source points against `mlp`.
-pub(crate) fn quality(mlp: &Mlp, moved: &[[f32; 3]], norm: &Normalization, ratio: f64) -> Quality {
-    let (phi, grads) = mlp.eval(moved, true);
+/// [`Quality`] of the unit-frame `moved` source points against `phi`.
+pub(crate) fn quality<F: Field + ?Sized>(
+    field: &F,
+    moved: &[[f32; 3]],
+    norm: &Normalization,
+    ratio: f64,
+) -> Quality {
+    let (phi, grads) = field.eval_points(moved, true);
     let mut information = Matrix6::zeros();
     let mut cost = 0.0;
     let mut moved_user = Vec::with_capacity(moved.len());

@@ -115,7 +115,15 @@ impl SdfModel {
         init: Option<&nalgebra::Isometry3<f64>>,
         settings: &RegisterSettings,
     ) -> Result<Registration, Error> {
-        crate::register::against_model(self, source, init, settings, false, &|_| {})
+        crate::register::against(
+            &self.norm,
+            &self.fitter,
+            source,
+            init,
+            settings,
+            false,
+            &|_| {},
+        )
     }
 
     /// [`SdfModel::register`] refining a private copy of Φ in the coarse-to-fine loop with the
@@ -127,7 +135,15 @@ impl SdfModel {
         init: Option<&nalgebra::Isometry3<f64>>,
         settings: &RegisterSettings,
     ) -> Result<Registration, Error> {
-        crate::register::against_model(self, source, init, settings, true, &|_| {})
+        crate::register::against(
+            &self.norm,
+            &self.fitter,
+            source,
+            init,
+            settings,
+            true,
+            &|_| {},
+        )
     }
 
     /// Registers a sequence of `frames` (user units), the first from `init` (maps the frame into
@@ -235,24 +251,7 @@ impl SdfModel {
     /// Φ and ∇Φ at `points` (target units and frame): the signed distance in those units and
     /// its gradient (unit-free), evaluated in parallel.
     pub fn evaluate(&self, points: &[Point3<f64>]) -> (Vec<f64>, Vec<Vector3<f64>>) {
-        let unit: Vec<[f32; 3]> = points.iter().map(|p| self.norm.to_unit(p)).collect();
-        let (phi, grad) = unit
-            .par_chunks(crate::mlp::BLOCK * 4)
-            .map(|chunk| self.mlp().eval(chunk, true))
-            .reduce(
-                || (Vec::new(), Vec::new()),
-                |mut a, b| {
-                    a.0.extend(b.0);
-                    a.1.extend(b.1);
-                    a
-                },
-            );
-        let phi = phi.iter().map(|&v| v as f64 * self.norm.scale).collect();
-        let grad = grad
-            .iter()
-            .map(|g| Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64))
-            .collect();
-        (phi, grad)
+        crate::field::evaluate_user(&self.norm, self.mlp(), points)
     }
 
     /// Signed distance Φ at `points`, in the target's units (positive outside).

@@ -18,9 +18,9 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::cloud::{subsample, transformed_f32};
+use crate::field::Surface;
 use crate::lm::{Kernel, Lm, LmSettings};
-use crate::mlp::Mlp;
-use crate::sdf_fit::{SdfFitter, Tree};
+use crate::sdf_fit::Tree;
 use crate::settings::MultistartSettings;
 
 /// The 24 rotations of the cube group: signed permutation matrices with determinant +1,
@@ -129,12 +129,12 @@ pub(crate) struct Hypotheses {
 
 /// The initial hypotheses for the unit-frame `source` against the pre-fitted Φ of `fit`, with
 /// `kernel` on the LM steps. `rng` draws the starts' source subsample.
-pub(crate) fn initial_hypotheses(
-    fit: &SdfFitter,
+pub(crate) fn initial_hypotheses<S: Surface>(
+    fit: &S,
     source: &[Point3<f64>],
     s: &MultistartSettings,
     lm: &LmSettings,
-    kernel: impl Fn(&Mlp, &[Point3<f64>], &Isometry3<f64>) -> Kernel + Sync,
+    kernel: impl Fn(&S::Phi, &[Point3<f64>], &Isometry3<f64>) -> Kernel + Sync,
     rng: &mut ChaCha8Rng,
 ) -> Hypotheses {
     let c_src = crate::cloud::centroid(source).coords;
@@ -144,12 +144,12 @@ pub(crate) fn initial_hypotheses(
         .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
         .sum::<Vector3<f64>>()
         / fit.target().len() as f64;
-    let mlp = fit.mlp();
+    let phi = fit.phi();
     let points = subsample(source, s.points, rng);
     let tau2 = s.truncation * s.truncation;
     let refine = |pose: Isometry3<f64>, steps: usize| {
         let mut solver = Lm::new(pose, lm);
-        solver.run(mlp, &points, kernel(mlp, &points, &pose), steps);
+        solver.run(phi, &points, kernel(phi, &points, &pose), steps);
         (
             nn_score(fit.tree(), &points, &solver.pose, tau2),
             solver.pose,

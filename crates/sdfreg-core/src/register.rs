@@ -34,6 +34,7 @@ use crate::cloud::{subsample, validate, Normalization};
 use crate::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::degeneracy::Degeneracy;
 use crate::error::{Error, Role};
+use crate::field::Surface;
 use crate::lm::{Lm, StopReason};
 use crate::measure::quality;
 use crate::model::SdfModel;
@@ -44,7 +45,6 @@ use crate::report::{
     RobustReport, ShiftSearchReport, Stages,
 };
 use crate::robust::{keep_rerun, rerun_settings, KernelPolicy, RobustMode};
-use crate::sdf_fit::SdfFitter;
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::shift_search::{search, Searched};
 
@@ -134,15 +134,27 @@ pub fn register_with_progress(
         let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
         let source = subsample(source, settings.max_source_points, &mut rng);
         let model = SdfModel::fit_drawing(target, settings, &mut rng, progress)?;
-        register_drawn(&model, &source, rng, init, settings, true, progress)
+        register_drawn(
+            &model.norm,
+            &model.fitter,
+            &source,
+            rng,
+            init,
+            settings,
+            true,
+            progress,
+        )
     })??;
     r.time = start.elapsed();
     Ok(r)
 }
 
-/// [`crate::SdfModel::register`] (`refine` false) and [`crate::SdfModel::register_refined`].
-pub(crate) fn against_model(
-    model: &SdfModel,
+/// [`crate::SdfModel::register`] (`refine` false), [`crate::SdfModel::register_refined`] and
+/// [`crate::MeshModel::register`]: `source` against `surface`, the target in the unit frame of
+/// `norm`.
+pub(crate) fn against<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
     source: &[Point3<f64>],
     init: Option<&Isometry3<f64>>,
     settings: &RegisterSettings,
@@ -151,13 +163,14 @@ pub(crate) fn against_model(
 ) -> Result<Registration, Error> {
     check_inputs(source, init, settings)?;
     in_pool(settings.threads, || {
-        against_model_in_pool(model, source, init, settings, refine, progress)
+        against_in_pool(norm, surface, source, init, settings, refine, progress)
     })?
 }
 
-/// [`against_model`] within the current pool, `settings` already checked.
-fn against_model_in_pool(
-    model: &SdfModel,
+/// [`against`] within the current pool, `settings` already checked.
+fn against_in_pool<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
     source: &[Point3<f64>],
     init: Option<&Isometry3<f64>>,
     settings: &RegisterSettings,
@@ -166,7 +179,9 @@ fn against_model_in_pool(
 ) -> Result<Registration, Error> {
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
     let source = subsample(source, settings.max_source_points, &mut rng);
-    register_drawn(model, &source, rng, init, settings, refine, progress)
+    register_drawn(
+        norm, surface, &source, rng, init, settings, refine, progress,
+    )
 }
 
 /// [`crate::SdfModel::track`]: every frame in one worker pool, each from the last good frame's
@@ -189,7 +204,15 @@ pub(crate) fn track<'a>(
             .map(|frame| {
                 let start = Instant::now();
                 let r = validate(frame, Role::Source, MIN_POINTS).and_then(|()| {
-                    against_model_in_pool(model, frame, Some(&last), settings, false, &|_| {})
+                    against_in_pool(
+                        &model.norm,
+                        &model.fitter,
+                        frame,
+                        Some(&last),
+                        settings,
+                        false,
+                        &|_| {},
+                    )
                 });
                 if let Ok(r) = &r {
                     last = r.t_target_source;
@@ -231,11 +254,13 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
     Ok(pool.install(f))
 }
 
-/// Stages 3–9 for the already subsampled `source` against `model`, `rng` being the
-/// registration's random stream after the subsampling; the robust re-run (stage 6) starts again
-/// from the same model and stream.
-fn register_drawn(
-    model: &SdfModel,
+/// Stages 3–9 for the already subsampled `source` against `surface` (the target in the unit
+/// frame of `norm`), `rng` being the registration's random stream after the subsampling; the
+/// robust re-run (stage 6) starts again from the same surface and stream.
+#[allow(clippy::too_many_arguments)]
+fn register_drawn<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
     source: &[Point3<f64>],
     rng: ChaCha8Rng,
     init: Option<&Isometry3<f64>>,
@@ -244,10 +269,10 @@ fn register_drawn(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     let start = Instant::now();
-    let unit = in_unit_frame(&model.norm, source)?;
+    let unit = in_unit_frame(norm, source)?;
     let run = |s: &RegisterSettings, policy| {
         let mut rng = rng.clone();
-        run(model, &unit, &mut rng, init, s, policy, refine, progress)
+        run(surface, &unit, &mut rng, init, s, policy, refine, progress)
     };
     let first = run(s, s.robust.first_run());
     let mut r = robust_rerun(first, s, run);
@@ -297,11 +322,11 @@ fn with_robust(mut r: Registration, report: RobustReport) -> Registration {
     r
 }
 
-/// One registration run with the kernel `policy` against `model` (a private copy of Φ refined
+/// One registration run with the kernel `policy` against `surface` (a private copy of Φ refined
 /// when `refine`): stages 3–9 of the module docs, less the robust re-run (which calls it again).
 #[allow(clippy::too_many_arguments)]
-fn run(
-    model: &SdfModel,
+fn run<S: Surface>(
+    surface: &S,
     unit: &Unit,
     rng: &mut ChaCha8Rng,
     init: Option<&Isometry3<f64>>,
@@ -310,8 +335,8 @@ fn run(
     refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Registration {
-    let mut fit = Cow::Borrowed(&model.fitter);
-    let (hypotheses, initial) = initial_pose(&fit, unit, init, s, policy, rng, progress);
+    let mut fit = Cow::Borrowed(surface);
+    let (hypotheses, initial) = initial_pose(&*fit, unit, init, s, policy, rng, progress);
     let Alternated {
         mut lm,
         survivors,
@@ -327,7 +352,7 @@ fn run(
     );
     let after_alternations = lm.pose;
     progress(Stage::Final);
-    let lm_stop = final_lm(&fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
+    let lm_stop = final_lm(&*fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
     let polished = polish(&unit.source, fit.target(), fit.tree(), &lm.pose, &s.polish);
     let searched = search(
         &unit.source,
@@ -349,7 +374,7 @@ fn run(
         polished,
         searched,
     };
-    measure(unit, &fit, s, policy, trace)
+    measure(unit, &*fit, s, policy, trace)
 }
 
 /// What the stages of one run produced, in order.
@@ -371,9 +396,9 @@ struct Trace {
 
 /// Stage 9: the result in the user's frame — its quality against the target and Φ, and what
 /// each stage did.
-fn measure(
+fn measure<S: Surface>(
     unit: &Unit,
-    fit: &SdfFitter,
+    fit: &S,
     s: &RegisterSettings,
     policy: KernelPolicy,
     t: Trace,
@@ -417,7 +442,7 @@ fn measure(
         },
     };
     let q = quality(
-        fit.mlp(),
+        fit.phi(),
         &t.searched.moved,
         &unit.norm,
         s.free_motion_ratio,
@@ -466,8 +491,8 @@ fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, E
 
 /// Stage 3: the hypotheses (unit frame) the coarse-to-fine loop starts from — the caller's
 /// guess, or the multi-start's — and the report of where they came from.
-fn initial_pose(
-    fit: &SdfFitter,
+fn initial_pose<S: Surface>(
+    fit: &S,
     unit: &Unit,
     init: Option<&Isometry3<f64>>,
     s: &RegisterSettings,
@@ -485,8 +510,8 @@ fn initial_pose(
         return (vec![unit.norm.pose_to_unit(t)], given);
     }
     progress(Stage::Multistart);
-    let kernel = |mlp: &_, points: &[Point3<f64>], pose: &Isometry3<f64>| {
-        kernel_at(mlp, points, pose, policy, policy.kappa_start())
+    let kernel = |phi: &S::Phi, points: &[Point3<f64>], pose: &Isometry3<f64>| {
+        kernel_at(phi, points, pose, policy, policy.kappa_start())
     };
     let found = initial_hypotheses(fit, &unit.source, &s.multistart, &s.lm, kernel, rng);
     let report = InitialReport {

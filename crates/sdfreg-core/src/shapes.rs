@@ -15,13 +15,58 @@ pub fn blob<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
                 StandardNormal.sample(rng),
             )
             .normalize();
-            let r = 1.0
-                + 0.25 * (3.0 * d.x + 1.0).sin() * (2.0 * d.y).cos()
-                + 0.2 * d.z * d.z * d.z
-                + 0.15 * d.x * d.y;
-            Point3::from(d.component_mul(&Vector3::new(0.55, 0.4, 0.3)) * r)
+            blob_point(&d)
         })
         .collect()
+}
+
+/// The point of the blob's surface in the unit direction `d` (for tests: the surface exactly).
+#[cfg(test)]
+pub(crate) fn blob_point_for_tests(d: &Vector3<f64>) -> Point3<f64> {
+    blob_point(d)
+}
+
+/// The point of the blob's surface in the unit direction `d`.
+fn blob_point(d: &Vector3<f64>) -> Point3<f64> {
+    let r = 1.0
+        + 0.25 * (3.0 * d.x + 1.0).sin() * (2.0 * d.y).cos()
+        + 0.2 * d.z * d.z * d.z
+        + 0.15 * d.x * d.y;
+    Point3::from(d.component_mul(&Vector3::new(0.55, 0.4, 0.3)) * r)
+}
+
+/// The [`blob`]'s surface as a closed triangle mesh, outward normals by the right-hand rule:
+/// a latitude–longitude grid of `rings` rings (≥ 2) of `2 rings` vertices and the two poles.
+/// Returns (vertices, triangles as vertex indices).
+pub fn blob_mesh(rings: usize) -> (Vec<Point3<f64>>, Vec<[usize; 3]>) {
+    let rings = rings.max(2);
+    let around = 2 * rings;
+    let mut vertices = vec![blob_point(&Vector3::z())];
+    for i in 1..rings {
+        let theta = std::f64::consts::PI * i as f64 / rings as f64;
+        for j in 0..around {
+            let phi = 2.0 * std::f64::consts::PI * j as f64 / around as f64;
+            let d = Vector3::new(
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                theta.cos(),
+            );
+            vertices.push(blob_point(&d));
+        }
+    }
+    vertices.push(blob_point(&-Vector3::z()));
+    let south = vertices.len() - 1;
+    let at = |i: usize, j: usize| 1 + (i - 1) * around + j % around;
+    let mut triangles = Vec::new();
+    for j in 0..around {
+        triangles.push([0, at(1, j), at(1, j + 1)]);
+        triangles.push([south, at(rings - 1, j + 1), at(rings - 1, j)]);
+        for i in 1..rings - 1 {
+            triangles.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            triangles.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    (vertices, triangles)
 }
 
 /// `n` nearly evenly spread unit vectors (a Fibonacci sphere, polar axis z): the unit sphere's

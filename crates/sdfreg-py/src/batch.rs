@@ -11,8 +11,9 @@ use std::time::Duration;
 use nalgebra::{Isometry3, Point3};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
-use sdfreg_core::{register_each, Pair, PairTarget, Registration, SdfModel};
+use sdfreg_core::{register_each, MeshModel, Pair, PairTarget, Registration, SdfModel};
 
+use crate::mesh_model::PyMeshModel;
 use crate::model::PySdfModel;
 use crate::registration::PyRegistration;
 use crate::settings::SettingsArgs;
@@ -145,6 +146,7 @@ struct Prepared {
 enum Target {
     Cloud(Vec<Point3<f64>>),
     Model(Arc<SdfModel>),
+    Mesh(Arc<MeshModel>),
 }
 
 impl Prepared {
@@ -166,9 +168,12 @@ impl Prepared {
             ));
         }
         let source = convert::points(&parts[0], "source")?;
-        let target = match parts[1].cast::<PySdfModel>() {
-            Ok(model) => Target::Model(model.get().0.clone()),
-            Err(_) => Target::Cloud(convert::points(&parts[1], "target")?),
+        let target = if let Ok(model) = parts[1].cast::<PySdfModel>() {
+            Target::Model(model.get().0.clone())
+        } else if let Ok(mesh) = parts[1].cast::<PyMeshModel>() {
+            Target::Mesh(mesh.get().model.clone())
+        } else {
+            Target::Cloud(convert::points(&parts[1], "target")?)
         };
         let init = match parts.get(2) {
             Some(m) if !m.is_none() => Some(convert::isometry(m, "init")?),
@@ -187,6 +192,7 @@ impl Prepared {
             target: match &self.target {
                 Target::Cloud(points) => PairTarget::Cloud(Cow::Borrowed(points)),
                 Target::Model(model) => PairTarget::Model(model),
+                Target::Mesh(mesh) => PairTarget::Mesh(mesh),
             },
             init: self.init,
             seed: None,

@@ -118,6 +118,14 @@ pub fn points_to_array<'py>(py: Python<'py>, pts: &[Point3<f64>]) -> Bound<'py, 
         .into_pyarray(py)
 }
 
+/// Vertex index triples as a new (F, 3) int64 array.
+pub fn faces_to_array<'py>(py: Python<'py>, faces: &[[usize; 3]]) -> Bound<'py, PyArray2<i64>> {
+    let flat: Vec<i64> = faces.iter().flatten().map(|&i| i as i64).collect();
+    Array2::from_shape_vec((faces.len(), 3), flat)
+        .expect("3 indices per face")
+        .into_pyarray(py)
+}
+
 /// A 4×4 matrix as a new float64 array.
 pub fn matrix4<'py>(py: Python<'py>, m: &Matrix4<f64>) -> Bound<'py, PyArray2<f64>> {
     Array2::from_shape_fn((4, 4), |(r, c)| m[(r, c)]).into_pyarray(py)

@@ -13,6 +13,7 @@
 mod batch;
 mod convert;
 mod error;
+mod mesh_model;
 mod model;
 mod registration;
 mod settings;
@@ -22,6 +23,7 @@ use std::path::PathBuf;
 use numpy::PyArray2;
 use pyo3::prelude::*;
 
+use mesh_model::PyMeshModel;
 use model::PySdfModel;
 use registration::{PyFreeMotion, PyRegistration};
 use settings::{
@@ -44,7 +46,8 @@ use settings::{
 ///         Open3D ``PointCloud`` (anything with a ``.points`` that numpy reads), or anything
 ///         ``numpy.asarray`` turns into one.
 ///     target: (M, 3) points that stay fixed, same units as ``source``; or an
-///         :class:`SdfModel` of them (:func:`fit`), registered against without fitting.
+///         :class:`SdfModel` of them (:func:`fit`), registered against without fitting; or a
+///         :class:`MeshModel` (:func:`mesh_model`), a mesh's exact distance field.
 ///     init: Optional 4×4 rigid initial guess mapping source into target; replaces the
 ///         multi-start.
 ///     refine: With an :class:`SdfModel` target: refine a private copy of Φ with the moved
@@ -109,6 +112,15 @@ fn register(
     let source = convert::points(source, "source")?;
     let target = match target.cast::<PySdfModel>() {
         Ok(model) => Target::Model(model.get().0.clone(), refine.unwrap_or(false)),
+        Err(_) if target.is_instance_of::<PyMeshModel>() => {
+            if refine == Some(true) {
+                return Err(error::argument(
+                    "refine",
+                    "True needs an SdfModel target (a mesh's exact field is not refined)",
+                ));
+            }
+            Target::Mesh(target.cast::<PyMeshModel>()?.get().model.clone())
+        }
         Err(_) if refine == Some(false) => {
             return Err(error::argument(
                 "refine",
@@ -141,6 +153,7 @@ fn register(
             Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),
             Target::Model(model, false) => model.register(&source, init.as_ref(), &s),
             Target::Model(model, true) => model.register_refined(&source, init.as_ref(), &s),
+            Target::Mesh(mesh) => mesh.register(&source, init.as_ref(), &s),
         })
         .map_err(error::registration)?;
     Ok(PyRegistration(result))
@@ -151,6 +164,7 @@ fn register(
 enum Target {
     Cloud(Vec<nalgebra::Point3<f64>>),
     Model(std::sync::Arc<sdfreg_core::SdfModel>, bool),
+    Mesh(std::sync::Arc<sdfreg_core::MeshModel>),
 }
 
 /// The core's defaults of every settings group, as nested dicts (for tests).
@@ -233,6 +247,10 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(registration::_registration_from_json, m)?)?;
     m.add_function(wrap_pyfunction!(settings::_settings_from_json, m)?)?;
     m.add_class::<PySdfModel>()?;
+    m.add_class::<PyMeshModel>()?;
+    m.add_function(wrap_pyfunction!(mesh_model::mesh_model, m)?)?;
+    m.add_function(wrap_pyfunction!(mesh_model::_mesh_model_from_parts, m)?)?;
+    m.add_function(wrap_pyfunction!(mesh_model::read_mesh, m)?)?;
     m.add_class::<PyRegistration>()?;
     m.add_class::<PyFreeMotion>()?;
     m.add_class::<PyMlpSettings>()?;

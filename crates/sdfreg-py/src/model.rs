@@ -17,7 +17,7 @@ use crate::error;
 use crate::settings::{IntoSetting, PyFitSettings, PyMlpSettings};
 
 /// A mesh as numpy arrays: vertices (V, 3) and faces (F, 3).
-type MeshArrays<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>);
+pub(crate) type MeshArrays<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>);
 
 /// A target fitted once (see :func:`fit`).
 #[pyclass(module = "sdfreg", name = "SdfModel", frozen)]

@@ -29,6 +29,7 @@ __all__ = [
     "Registration",
     "RobustSettings",
     "SdfModel",
+    "MeshModel",
     "ShiftSearchSettings",
     "__version__",
     "_model_from_bytes",
@@ -36,6 +37,9 @@ __all__ = [
     "_settings_from_json",
     "fit",
     "load_model",
+    "mesh_model",
+    "read_mesh",
+    "_mesh_model_from_parts",
     "_core_defaults",
     "read_point_cloud",
     "register",
@@ -369,7 +373,7 @@ class Registration:
 
 def register(
     source: Union[npt.ArrayLike, _HasPoints],
-    target: Union[npt.ArrayLike, _HasPoints, SdfModel],
+    target: Union[npt.ArrayLike, _HasPoints, SdfModel, MeshModel],
     *,
     init: Optional[npt.ArrayLike] = None,
     refine: Optional[bool] = None,
@@ -403,7 +407,8 @@ def register(
             Open3D ``PointCloud`` (anything with a ``.points`` that numpy reads), or anything
             ``numpy.asarray`` turns into one.
         target: (M, 3) points that stay fixed, same units as ``source``; or an
-            :class:`SdfModel` of them (:func:`fit`), registered against without fitting.
+            :class:`SdfModel` of them (:func:`fit`), registered against without fitting; or a
+            :class:`MeshModel` (:func:`mesh_model`), a mesh's exact distance field.
         init: Optional 4×4 rigid initial guess mapping source into target; replaces the
             multi-start.
         refine: With an :class:`SdfModel` target: refine a private copy of Φ with the moved
@@ -446,11 +451,12 @@ def register_many(
     pairs: Iterable[
         Union[
             Tuple[
-                Union[npt.ArrayLike, _HasPoints], Union[npt.ArrayLike, _HasPoints, SdfModel]
+                Union[npt.ArrayLike, _HasPoints],
+                Union[npt.ArrayLike, _HasPoints, SdfModel, MeshModel],
             ],
             Tuple[
                 Union[npt.ArrayLike, _HasPoints],
-                Union[npt.ArrayLike, _HasPoints, SdfModel],
+                Union[npt.ArrayLike, _HasPoints, SdfModel, MeshModel],
                 Optional[npt.ArrayLike],
             ],
         ]
@@ -612,6 +618,81 @@ def load_model(path: _PathLike) -> SdfModel:
             (checksum), of another program, or of a newer format version; the message names
             the file and what is wrong.
     """
+
+@final
+class MeshModel:
+    """A target mesh as its exact distance field (see :func:`mesh_model`). Immutable; pickles
+    (through its vertices and faces)."""
+
+    def register(
+        self,
+        source: Union[npt.ArrayLike, _HasPoints],
+        *,
+        init: Optional[npt.ArrayLike] = None,
+        preset: Optional[str] = None,
+        robust: Union[str, RobustSettings, None] = None,
+        seed: int = 0,
+        threads: int = 0,
+        max_source_points: Optional[int] = None,
+        inlier_distance: Optional[float] = None,
+        free_motion_ratio: Optional[float] = None,
+        multistart: Optional[MultistartSettings] = None,
+        coarse_to_fine: Optional[CoarseToFineSettings] = None,
+        lm: Optional[LmSettings] = None,
+        polish: Optional[PolishSettings] = None,
+        shift_search: Optional[ShiftSearchSettings] = None,
+    ) -> Registration:
+        """Registers ``source`` onto the mesh: ``sdfreg.register(source, mesh, **kwargs)``."""
+    def distance(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The distance at ``points`` ((N, 3), the mesh's units and frame), negative inside when
+        :attr:`is_signed`, as an (N,) float64 array."""
+    def closest_points(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+        """The closest surface point of each of ``points``, as (N, 3)."""
+    @property
+    def is_signed(self) -> bool:
+        """Whether the distance is signed: the mesh is closed and consistently wound."""
+    @property
+    def target_points(self) -> npt.NDArray[np.float64]:
+        """The points sampled on the faces for the polish, (M, 3)."""
+    def __reduce__(self) -> Any: ...
+
+def mesh_model(
+    vertices: npt.ArrayLike,
+    faces: npt.ArrayLike,
+    *,
+    seed: int = 0,
+    max_target_points: Optional[int] = None,
+) -> MeshModel:
+    """A target mesh as its own exact distance field: registering against it needs no fitting
+    (scans onto CAD models or reconstructions).
+
+    Φ(x) is the distance to the nearest triangle (signed, negative inside, when the mesh is
+    closed and consistently wound; see :attr:`MeshModel.is_signed`); far from the surface
+    (beyond four edge lengths from the nearest vertex) the nearest vertex's distance stands in.
+
+    Args:
+        vertices: (V, 3) points, any units.
+        faces: (F, 3) integer vertex indices.
+        seed: Seed of the target points sampled on the faces for the polish.
+        max_target_points: How many target points are sampled (default: as ``register``).
+
+    Raises:
+        ValueError: ``vertices`` is not an (N, 3) finite float array, ``faces`` not an (F, 3)
+            integer array, an index is out of range, there are no faces or they have no area.
+    """
+
+def read_mesh(path: _PathLike) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Reads a PLY mesh: ``(vertices (V, 3) float64, faces (F, 3) int64)``; a cloud without faces
+    gives an empty ``faces``.
+
+    Raises:
+        OSError: the file cannot be read, is not a PLY or is malformed (naming the file).
+    """
+
+def _mesh_model_from_parts(
+    vertices: npt.ArrayLike, faces: npt.ArrayLike, seed: int, max_target_points: int
+) -> MeshModel:
+    """A MeshModel from its parts (unpickling)."""
 
 def _model_from_bytes(data: bytes) -> SdfModel:
     """A model from ``.sdfm`` bytes (unpickling)."""

@@ -1,0 +1,114 @@
+//! What the solver registers against: a distance field Φ of the target in its unit frame
+//! ([`Field`]) — the fitted MLP ([`crate::mlp::Mlp`]) or a mesh's exact distance
+//! ([`crate::mesh_field::MeshField`]) — together with the target points the polish and the
+//! quality figures use (`Surface`, within the crate).
+
+use rayon::prelude::*;
+
+use crate::mlp::{with_workspace, Mlp, BLOCK};
+use crate::sdf_fit::{SdfFitter, Tree};
+
+/// A distance field of the target, unit frame (the target's largest bounding-box side is 1):
+/// the value Φ(x), zero on the surface, and its gradient.
+pub trait Field: Sync {
+    /// Φ at each of `xs` (at most [`BLOCK`] points) into `values` and, when asked, ∇Φ into
+    /// `gradients` (both cleared first).
+    fn eval_block(
+        &self,
+        xs: &[[f32; 3]],
+        values: &mut Vec<f32>,
+        gradients: Option<&mut Vec<[f32; 3]>>,
+    );
+
+    /// Φ (and ∇Φ when `gradients`, else an empty vector) at any number of points, in parallel.
+    fn eval_points(&self, xs: &[[f32; 3]], gradients: bool) -> (Vec<f32>, Vec<[f32; 3]>) {
+        let parts: Vec<(Vec<f32>, Vec<[f32; 3]>)> = xs
+            .par_chunks(BLOCK)
+            .map(|chunk| {
+                let (mut v, mut g) = (Vec::new(), Vec::new());
+                self.eval_block(chunk, &mut v, gradients.then_some(&mut g));
+                (v, g)
+            })
+            .collect();
+        let mut values = Vec::with_capacity(xs.len());
+        let mut grads = Vec::with_capacity(if gradients { xs.len() } else { 0 });
+        for (v, g) in parts {
+            values.extend(v);
+            grads.extend(g);
+        }
+        (values, grads)
+    }
+}
+
+impl Field for Mlp {
+    fn eval_block(
+        &self,
+        xs: &[[f32; 3]],
+        values: &mut Vec<f32>,
+        gradients: Option<&mut Vec<[f32; 3]>>,
+    ) {
+        with_workspace(|ws| {
+            self.forward_block(xs, gradients.is_some(), ws);
+            values.clear();
+            values.extend((0..xs.len()).map(|j| ws.value(j)));
+            if let Some(g) = gradients {
+                g.clear();
+                g.extend((0..xs.len()).map(|j| ws.gradient(j)));
+            }
+        })
+    }
+}
+
+/// The target as the registration stages use it: Φ, the (subsampled) target points in the unit
+/// frame and their k-d tree; refinable when Φ is fitted.
+pub(crate) trait Surface: Clone + Sync {
+    /// The distance field.
+    type Phi: Field;
+    /// Φ.
+    fn phi(&self) -> &Self::Phi;
+    /// Target points, unit frame.
+    fn target(&self) -> &[[f32; 3]];
+    /// Their k-d tree.
+    fn tree(&self) -> &Tree;
+    /// Adds moved-source queries for a refinement of Φ (coarse-to-fine); an exact field has
+    /// nothing to refine and ignores them.
+    fn add_source_queries(&mut self, points: &[[f32; 3]]);
+    /// Refines Φ for `steps` Adam steps at `lr`; an exact field ignores it.
+    fn refine(&mut self, steps: usize, lr: f32);
+}
+
+impl Surface for SdfFitter {
+    type Phi = Mlp;
+    fn phi(&self) -> &Mlp {
+        self.mlp()
+    }
+    fn target(&self) -> &[[f32; 3]] {
+        SdfFitter::target(self)
+    }
+    fn tree(&self) -> &Tree {
+        SdfFitter::tree(self)
+    }
+    fn add_source_queries(&mut self, points: &[[f32; 3]]) {
+        SdfFitter::add_source_queries(self, points)
+    }
+    fn refine(&mut self, steps: usize, lr: f32) {
+        self.train(steps, lr);
+    }
+}
+
+/// Φ (user units) and ∇Φ at `points` (user units and frame) of a field in the unit frame of
+/// `norm`, in parallel.
+pub(crate) fn evaluate_user<F: Field + ?Sized>(
+    norm: &crate::cloud::Normalization,
+    field: &F,
+    points: &[nalgebra::Point3<f64>],
+) -> (Vec<f64>, Vec<nalgebra::Vector3<f64>>) {
+    let unit: Vec<[f32; 3]> = points.iter().map(|p| norm.to_unit(p)).collect();
+    let (phi, grad) = field.eval_points(&unit, true);
+    let phi = phi.iter().map(|&v| v as f64 * norm.scale).collect();
+    let grad = grad
+        .iter()
+        .map(|g| nalgebra::Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64))
+        .collect();
+    (phi, grad)
+}
