@@ -112,3 +112,16 @@ pub(crate) fn evaluate_user<F: Field + ?Sized>(
         .collect();
     (phi, grad)
 }
+
+/// The closest surface point of each of `points` (user units and frame), `p − Φ ∇Φ/‖∇Φ‖`, with
+/// `(Φ, ∇Φ)` from [`evaluate_user`].
+pub(crate) fn closest_user(
+    points: &[nalgebra::Point3<f64>],
+    (phi, grad): (Vec<f64>, Vec<nalgebra::Vector3<f64>>),
+) -> Vec<nalgebra::Point3<f64>> {
+    points
+        .iter()
+        .zip(phi.iter().zip(&grad))
+        .map(|(p, (d, g))| p - g.normalize() * *d)
+        .collect()
+}

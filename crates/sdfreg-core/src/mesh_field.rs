@@ -307,12 +307,7 @@ impl MeshModel {
 
     /// The closest surface point of each of `points`, target units and frame.
     pub fn closest_points(&self, points: &[Point3<f64>]) -> Vec<Point3<f64>> {
-        let (phi, grad) = self.evaluate(points);
-        points
-            .iter()
-            .zip(phi.iter().zip(&grad))
-            .map(|(p, (d, g))| p - g.normalize() * *d)
-            .collect()
+        crate::field::closest_user(points, self.evaluate(points))
     }
 
     /// The points sampled on the faces (target units and frame).

@@ -18,7 +18,6 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
-use rayon::prelude::*;
 
 /// Architecture and initialisation of the SDF network.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -532,28 +531,7 @@ impl Mlp {
     /// [`BLOCK`] points on the current rayon pool. Returns `(values, gradients)`; gradients is
     /// empty when not asked for.
     pub fn eval(&self, points: &[[f32; 3]], gradients: bool) -> (Vec<f32>, Vec<[f32; 3]>) {
-        let parts: Vec<(Vec<f32>, Vec<[f32; 3]>)> = points
-            .par_chunks(BLOCK)
-            .map(|chunk| {
-                with_workspace(|ws| {
-                    self.forward_block(chunk, gradients, ws);
-                    let v = (0..chunk.len()).map(|j| ws.value(j)).collect();
-                    let g = if gradients {
-                        (0..chunk.len()).map(|j| ws.gradient(j)).collect()
-                    } else {
-                        Vec::new()
-                    };
-                    (v, g)
-                })
-            })
-            .collect();
-        let mut values = Vec::with_capacity(points.len());
-        let mut grads = Vec::with_capacity(if gradients { points.len() } else { 0 });
-        for (v, g) in parts {
-            values.extend(v);
-            grads.extend(g);
-        }
-        (values, grads)
+        crate::field::Field::eval_points(self, points, gradients)
     }
 }
 

@@ -267,12 +267,7 @@ impl SdfModel {
     /// The closest surface point of each of `points`: `p − Φ(p) ∇Φ(p)/‖∇Φ(p)‖` (the projection
     /// the fit trains, paper eq. 18), target units and frame.
     pub fn closest_points(&self, points: &[Point3<f64>]) -> Vec<Point3<f64>> {
-        let (phi, grad) = self.evaluate(points);
-        points
-            .iter()
-            .zip(phi.iter().zip(&grad))
-            .map(|(p, (d, g))| p - g.normalize() * *d)
-            .collect()
+        crate::field::closest_user(points, self.evaluate(points))
     }
 }
 
