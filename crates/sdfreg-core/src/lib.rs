@@ -37,7 +37,8 @@
 //!   and place ([`IoError`]).
 //! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,
 //!   the unit-frame normalisation; [`mesh`]: sampling points on triangles; [`shapes`]:
-//!   procedural test shapes.
+//!   procedural test shapes; [`lidar`]: a procedural LiDAR simulator (a spinning multi-beam
+//!   sensor ray-cast into a street or a room); [`mesh_field`]: a mesh as its exact distance field.
 //! - Building blocks (benchmarks, experiments): [`mlp`] (the network with hand-written
 //!   derivatives), [`sdf_fit`] (fitting Φ), [`lm`] (the SE(3) solver).
 //!
@@ -64,6 +65,7 @@
 pub mod cloud;
 pub mod field;
 pub mod io;
+pub mod lidar;
 pub mod lm;
 pub mod mesh;
 pub mod mesh_field;
