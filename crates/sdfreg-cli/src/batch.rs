@@ -40,7 +40,8 @@ struct Row {
     source_path: PathBuf,
     target_path: PathBuf,
     init: Option<PathBuf>,
-    seed: Option<u64>,
+    /// The row's seed, or `--seed` when it gives none.
+    seed: u64,
 }
 
 pub fn run(a: BatchArgs) -> Result<()> {
@@ -50,8 +51,8 @@ pub fn run(a: BatchArgs) -> Result<()> {
             a.output.display()
         );
     }
-    let rows = read_pairs(&a.pairs)?;
     let settings = a.common.settings()?;
+    let rows = read_pairs(&a.pairs, settings.seed)?;
     let pairs_name = a
         .pairs
         .canonicalize()
@@ -92,22 +93,25 @@ pub fn run(a: BatchArgs) -> Result<()> {
     });
     let start = Instant::now();
     // Rows whose files cannot be read are recorded as failed right away; the rest register.
-    let loaded = pending.iter().filter_map(|&row| {
-        let seed = row.seed.unwrap_or(settings.seed);
-        match load(row, seed, &models, &a) {
+    let loaded = pending
+        .iter()
+        .filter_map(|&row| match load(row, &models, &a) {
             Ok(pair) => Some((row, pair)),
             Err(e) => {
-                lock(&out).record(row, seed, Err(format!("{e:#}")));
+                lock(&out).record(row, Err(format!("{e:#}")));
                 None
             }
-        }
-    });
+        });
     let stop = AtomicBool::new(false);
     register_each(loaded, &settings, a.common.threads, &stop, |row, r| {
-        let seed = row.seed.unwrap_or(settings.seed);
-        let r = r.map_err(|e| name_cloud(&e, row));
+        let r = r.map_err(|e| {
+            format!(
+                "{:#}",
+                crate::name_cloud(e.into(), &row.source_path, &row.target_path)
+            )
+        });
         let mut out = lock(&out);
-        out.record(row, seed, r);
+        out.record(row, r);
         if out.error.is_some() {
             // The output cannot be written: start no more pairs.
             stop.store(true, std::sync::atomic::Ordering::Relaxed);
@@ -153,7 +157,7 @@ struct Output<'a> {
 }
 
 impl Output<'_> {
-    fn record(&mut self, row: &Row, seed: u64, result: Result<Registration, String>) {
+    fn record(&mut self, row: &Row, result: Result<Registration, String>) {
         if self.error.is_some() {
             return;
         }
@@ -161,7 +165,7 @@ impl Output<'_> {
             "row": row.number,
             "source": row.source,
             "target": row.target,
-            "seed": seed,
+            "seed": row.seed,
             "ok": result.is_ok(),
         });
         let fields = match &result {
@@ -209,10 +213,10 @@ fn bar(len: u64) -> ProgressBar {
 /// Reads a row's clouds and initial guess.
 fn load<'m>(
     row: &Row,
-    seed: u64,
     models: &'m HashMap<&Path, Result<SdfModel, String>>,
     a: &BatchArgs,
 ) -> Result<Pair<'m>> {
+    let seed = row.seed;
     let source = crate::read_cloud(&row.source_path, &a.input, seed)?;
     let target = match models.get(row.target_path.as_path()) {
         Some(Ok(model)) => PairTarget::Model(model),
@@ -228,18 +232,9 @@ fn load<'m>(
     })
 }
 
-/// A registration error with the file it is about named, when it is about one cloud.
-fn name_cloud(e: &sdfreg_core::Error, row: &Row) -> String {
-    match e.role() {
-        Some(sdfreg_core::Role::Source) => format!("{}: {e}", row.source_path.display()),
-        Some(sdfreg_core::Role::Target) => format!("{}: {e}", row.target_path.display()),
-        None => e.to_string(),
-    }
-}
-
-/// The rows of the pairs file; any malformed row fails the whole batch before it starts,
-/// naming the line.
-fn read_pairs(path: &Path) -> Result<Vec<Row>> {
+/// The rows of the pairs file, `default_seed` for those that give none; any malformed row fails
+/// the whole batch before it starts, naming the line.
+fn read_pairs(path: &Path, default_seed: u64) -> Result<Vec<Row>> {
     let base = path.parent().unwrap_or(Path::new(""));
     let resolve = |p: &str| base.join(p);
     let mut reader = csv::ReaderBuilder::new()
@@ -277,10 +272,10 @@ fn read_pairs(path: &Path) -> Result<Vec<Row>> {
         }
         let init = record.get(2).filter(|s| !s.is_empty()).map(resolve);
         let seed = match record.get(3).filter(|s| !s.is_empty()) {
-            Some(s) => Some(s.parse::<u64>().map_err(|_| {
+            Some(s) => s.parse::<u64>().map_err(|_| {
                 anyhow::anyhow!("{}: seed {s:?} is not a non-negative integer", at())
-            })?),
-            None => None,
+            })?,
+            None => default_seed,
         };
         rows.push(Row {
             number: rows.len() as u64 + 1,
