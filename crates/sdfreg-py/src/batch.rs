@@ -5,19 +5,17 @@
 
 use std::borrow::Cow;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{mpsc, Arc, Mutex};
+use std::sync::{mpsc, Mutex};
 use std::time::Duration;
 
 use nalgebra::{Isometry3, Point3};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList, PyTuple};
-use sdfreg_core::{register_each, MeshModel, Pair, PairTarget, Registration, SdfModel};
+use sdfreg_core::{register_each, Pair, PairTarget, Registration};
 
-use crate::mesh_model::PyMeshModel;
-use crate::model::PySdfModel;
 use crate::registration::PyRegistration;
 use crate::settings::SettingsArgs;
-use crate::{convert, error};
+use crate::{convert, error, Target};
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
 /// Registers many pairs at once, on every core: one pair per worker thread, each
@@ -143,12 +141,6 @@ struct Prepared {
     init: Option<Isometry3<f64>>,
 }
 
-enum Target {
-    Cloud(Vec<Point3<f64>>),
-    Model(Arc<SdfModel>),
-    Mesh(Arc<MeshModel>),
-}
-
 impl Prepared {
     fn from_python(item: &Bound<'_, PyAny>) -> PyResult<Self> {
         // A tuple or list of 2 or 3 (not a string, an array or a dict, which also iterate).
@@ -168,13 +160,7 @@ impl Prepared {
             ));
         }
         let source = convert::points(&parts[0], "source")?;
-        let target = if let Ok(model) = parts[1].cast::<PySdfModel>() {
-            Target::Model(model.get().0.clone())
-        } else if let Ok(mesh) = parts[1].cast::<PyMeshModel>() {
-            Target::Mesh(mesh.get().model.clone())
-        } else {
-            Target::Cloud(convert::points(&parts[1], "target")?)
-        };
+        let target = Target::from_python(&parts[1])?;
         let init = match parts.get(2) {
             Some(m) if !m.is_none() => Some(convert::isometry(m, "init")?),
             _ => None,
@@ -220,24 +206,21 @@ fn progress_callback<'py>(
     let Some(p) = progress.filter(|p| !p.is_none()) else {
         return Ok(None);
     };
-    if let Ok(on) = p.extract::<bool>() {
-        if !p.is_callable() {
-            return if on {
-                let bar = py.import("sdfreg._progress")?.getattr("ProgressBar")?;
-                Ok(Some(bar.call1((total, "register_many"))?))
-            } else {
-                Ok(None)
-            };
-        }
+    if p.is_callable() {
+        return Ok(Some(p.clone()));
     }
-    if !p.is_callable() {
-        return Err(error::argument(
+    match p.extract::<bool>() {
+        Ok(true) => {
+            let bar = py.import("sdfreg._progress")?.getattr("ProgressBar")?;
+            Ok(Some(bar.call1((total, "register_many"))?))
+        }
+        Ok(false) => Ok(None),
+        Err(_) => Err(error::argument(
             "progress",
             format!(
                 "expected True, False or a callable (done, total), got {}",
                 p.repr()?
             ),
-        ));
+        )),
     }
-    Ok(Some(p.clone()))
 }

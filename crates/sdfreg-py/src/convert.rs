@@ -97,6 +97,18 @@ pub fn finite_points(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<Point3<
     Ok(pts)
 }
 
+/// `f` of `model` and `points` (an (N, 3) array of finite points, copied), with the GIL
+/// released: the queries of `SdfModel` and `MeshModel`.
+pub fn query<M: Send + Sync, T: Send>(
+    model: &std::sync::Arc<M>,
+    points: &Bound<'_, PyAny>,
+    f: impl FnOnce(&M, &[Point3<f64>]) -> T + Send,
+) -> PyResult<T> {
+    let pts = finite_points(points, "points")?;
+    let model = model.clone();
+    Ok(points.py().detach(move || f(&model, &pts)))
+}
+
 /// A 4×4 rigid transform (array-like).
 pub fn isometry(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Isometry3<f64>> {
     let array = float_array(obj, name, Some(4), 4)?;

@@ -110,24 +110,21 @@ fn register(
     shift_search: Option<PyRef<'_, PyShiftSearchSettings>>,
 ) -> PyResult<PyRegistration> {
     let source = convert::points(source, "source")?;
-    let target = match target.cast::<PySdfModel>() {
-        Ok(model) => Target::Model(model.get().0.clone(), refine.unwrap_or(false)),
-        Err(_) if target.is_instance_of::<PyMeshModel>() => {
-            if refine == Some(true) {
-                return Err(error::argument(
-                    "refine",
-                    "True needs an SdfModel target (a mesh's exact field is not refined)",
-                ));
-            }
-            Target::Mesh(target.cast::<PyMeshModel>()?.get().model.clone())
+    let target = Target::from_python(target)?;
+    let refine = match (&target, refine) {
+        (Target::Mesh(_), Some(true)) => {
+            return Err(error::argument(
+                "refine",
+                "True needs an SdfModel target (a mesh's exact field is not refined)",
+            ));
         }
-        Err(_) if refine == Some(false) => {
+        (Target::Cloud(_), Some(false)) => {
             return Err(error::argument(
                 "refine",
                 "False needs an SdfModel target (a cloud is fitted and refined)",
             ));
         }
-        Err(_) => Target::Cloud(convert::points(target, "target")?),
+        (_, refine) => refine.unwrap_or(false),
     };
     let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
     let s = SettingsArgs {
@@ -151,20 +148,33 @@ fn register(
     let result = py
         .detach(|| match &target {
             Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),
-            Target::Model(model, false) => model.register(&source, init.as_ref(), &s),
-            Target::Model(model, true) => model.register_refined(&source, init.as_ref(), &s),
+            Target::Model(model) if refine => model.register_refined(&source, init.as_ref(), &s),
+            Target::Model(model) => model.register(&source, init.as_ref(), &s),
             Target::Mesh(mesh) => mesh.register(&source, init.as_ref(), &s),
         })
         .map_err(error::registration)?;
     Ok(PyRegistration(result))
 }
 
-/// What `register` registers against: the target's points, or a model of them (and whether
-/// to refine a copy of its Φ).
-enum Target {
+/// What a source is registered against (`register`'s and each pair's `target`): the target's
+/// points, a fitted model, or a mesh's exact field.
+pub(crate) enum Target {
     Cloud(Vec<nalgebra::Point3<f64>>),
-    Model(std::sync::Arc<sdfreg_core::SdfModel>, bool),
+    Model(std::sync::Arc<sdfreg_core::SdfModel>),
     Mesh(std::sync::Arc<sdfreg_core::MeshModel>),
+}
+
+impl Target {
+    /// An `SdfModel`, a `MeshModel`, or else an (N, 3) cloud (`ValueError` naming `target`).
+    pub(crate) fn from_python(obj: &Bound<'_, PyAny>) -> PyResult<Self> {
+        if let Ok(model) = obj.cast::<PySdfModel>() {
+            Ok(Target::Model(model.get().0.clone()))
+        } else if let Ok(mesh) = obj.cast::<PyMeshModel>() {
+            Ok(Target::Mesh(mesh.get().model.clone()))
+        } else {
+            Ok(Target::Cloud(convert::points(obj, "target")?))
+        }
+    }
 }
 
 /// The core's defaults of every settings group, as nested dicts (for tests).

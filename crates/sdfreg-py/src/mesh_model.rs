@@ -150,9 +150,7 @@ impl PyMeshModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.model.clone();
-        let d = py.detach(move || model.distance(&pts));
+        let d = convert::query(&self.model, points, |m, p| m.distance(p))?;
         Ok(PyArray1::from_vec(py, d))
     }
 
@@ -162,9 +160,7 @@ impl PyMeshModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.model.clone();
-        let c = py.detach(move || model.closest_points(&pts));
+        let c = convert::query(&self.model, points, |m, p| m.closest_points(p))?;
         Ok(convert::points_to_array(py, &c))
     }
 

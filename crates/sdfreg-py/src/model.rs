@@ -94,20 +94,6 @@ pub fn _model_from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<PySdfModel> {
     Ok(PySdfModel(Arc::new(model)))
 }
 
-impl PySdfModel {
-    /// `f` of the model and `points` (an (N, 3) array of finite points, copied), with the GIL
-    /// released.
-    fn query<T: Send>(
-        &self,
-        points: &Bound<'_, PyAny>,
-        f: impl FnOnce(&SdfModel, &[nalgebra::Point3<f64>]) -> T + Send,
-    ) -> PyResult<T> {
-        let pts = convert::finite_points(points, "points")?;
-        let model = self.0.clone();
-        Ok(points.py().detach(move || f(&model, &pts)))
-    }
-}
-
 #[pymethods]
 impl PySdfModel {
     /// Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
@@ -130,7 +116,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let d = self.query(points, |m, p| m.distance(p))?;
+        let d = convert::query(&self.0, points, |m, p| m.distance(p))?;
         Ok(PyArray1::from_vec(py, d))
     }
 
@@ -140,7 +126,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let g = self.query(points, |m, p| m.gradient(p))?;
+        let g = convert::query(&self.0, points, |m, p| m.gradient(p))?;
         let as_points: Vec<nalgebra::Point3<f64>> =
             g.into_iter().map(nalgebra::Point3::from).collect();
         Ok(convert::points_to_array(py, &as_points))
@@ -152,7 +138,7 @@ impl PySdfModel {
         py: Python<'py>,
         points: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let q = self.query(points, |m, p| m.closest_points(p))?;
+        let q = convert::query(&self.0, points, |m, p| m.closest_points(p))?;
         Ok(convert::points_to_array(py, &q))
     }
 
