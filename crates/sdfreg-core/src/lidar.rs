@@ -350,17 +350,11 @@ mod tests {
             .collect();
         // Every return is the first surface along its beam: no solid lies between the sensor
         // and it (tested against each solid alone).
-        let origin = Point3::new(0.5, 0.0, 1.2);
-        let mut shadowed = 0;
-        for p in points.iter().step_by(11) {
-            let to = p - origin;
-            let range = to.norm();
-            for part in scene.parts() {
-                let alone = Builder {
-                    shapes: Vec::new(),
-                    parts: Vec::new(),
-                };
-                let mut alone = alone;
+        let solids: Vec<Scene> = scene
+            .parts()
+            .iter()
+            .map(|part| {
+                let mut alone = Builder::new();
                 if part.kind == "pole" {
                     let base = part.centre - Vector3::z() * part.half_extents.z;
                     alone.pole(
@@ -373,7 +367,16 @@ mod tests {
                     let size = part.half_extents * 2.0;
                     alone.cuboid(part.kind, [min.x, min.y, min.z], [size.x, size.y, size.z]);
                 }
-                let hit = alone.build().cast(&origin, &(to / range), range);
+                alone.build()
+            })
+            .collect();
+        let origin = Point3::from(pose.translation.vector);
+        let mut shadowed = 0;
+        for p in points.iter().step_by(11) {
+            let to = p - origin;
+            let range = to.norm();
+            for solid in &solids {
+                let hit = solid.cast(&origin, &(to / range), range);
                 if hit.is_some_and(|t| t < range - 1e-3) {
                     shadowed += 1;
                 }
