@@ -35,7 +35,7 @@ fn recovers_a_40_degree_motion_of_a_blob() {
     assert_eq!(st.polish.result, PolishResult::Snapped, "{st:?}");
     assert!(st.polish.change.rotation_deg < 1.0, "{st:?}");
     assert!(
-        matches!(st.robust, RobustReport::NotNeeded { least_squares_fitness } if least_squares_fitness == r.fitness),
+        matches!(st.robust, RobustReport::NotNeeded { least_squares_fitness, least_squares_outside } if least_squares_fitness == r.fitness && least_squares_outside == 0.0),
         "{st:?}"
     );
     assert!(!st.shift_search.taken, "{st:?}");
@@ -125,6 +125,7 @@ fn a_poor_least_squares_fit_is_redone_with_the_robust_kernel() {
     let RobustReport::RerunKept {
         least_squares_fitness,
         robust_fitness,
+        ..
     } = r.stages.robust
     else {
         panic!("{:?}", r.stages.robust)

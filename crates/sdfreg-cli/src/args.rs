@@ -85,6 +85,11 @@ pub struct Common {
     /// [default: 0.35].
     #[arg(long)]
     pub robust_below_fitness: Option<f64>,
+    /// With --robust-mode auto: the share of the source outside the target's coverage (beyond
+    /// 10 target point spacings) above which the robust re-run is tried, kept if it fits more
+    /// points; 1 never [default: 0.2].
+    #[arg(long)]
+    pub robust_outside_share: Option<f64>,
     /// Also start the multi-start shifted by ± this along each axis (fraction of the target's
     /// size) [default: 0.1].
     #[arg(long)]
@@ -130,6 +135,12 @@ impl Common {
             (Some(RobustFlag::On), _) => s.robust.mode = RobustMode::On,
             (Some(RobustFlag::Auto), _) => s.robust.mode = RobustMode::AUTO,
             (None, None) => {}
+        }
+        if let Some(f) = self.robust_outside_share {
+            let RobustMode::Auto { outside_share, .. } = &mut s.robust.mode else {
+                anyhow::bail!("--robust-outside-share: only with --robust-mode auto");
+            };
+            *outside_share = f;
         }
         if let Some(f) = self.robust_below_fitness {
             let RobustMode::Auto { below_fitness, .. } = &mut s.robust.mode else {
@@ -309,8 +320,9 @@ pub struct EvalArgs {
     #[arg(long, requires = "write_pairs")]
     pub pairs_only: bool,
     /// Fit each pair's target once as a model (`sdfreg fit`) and register the source against it
-    /// with Φ frozen; the table's times are then the registrations alone, and each protocol's
-    /// median fit time is printed below its row.
+    /// with Φ frozen; the table's times are then the registrations alone. Each pair also runs
+    /// a full `register` call: below each protocol's row, the median fit time, the median full
+    /// call and the registration against the model as a share of it.
     #[arg(long)]
     pub via_model: bool,
     /// Overwrite --json or --write-pairs output if it exists.

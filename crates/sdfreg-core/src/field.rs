@@ -64,8 +64,13 @@ impl Field for Mlp {
 pub(crate) trait Surface: Clone + Sync {
     /// The distance field.
     type Phi: Field;
+    /// The field of the multi-start's first round: Φ itself, or Φ baked into a grid when Φ is
+    /// frozen ([`crate::grid_field`]).
+    type Coarse: Field;
     /// Φ.
     fn phi(&self) -> &Self::Phi;
+    /// The multi-start's field.
+    fn coarse(&self) -> &Self::Coarse;
     /// Target points, unit frame.
     fn target(&self) -> &[[f32; 3]];
     /// Their k-d tree.
@@ -79,7 +84,11 @@ pub(crate) trait Surface: Clone + Sync {
 
 impl Surface for SdfFitter {
     type Phi = Mlp;
+    type Coarse = Mlp;
     fn phi(&self) -> &Mlp {
+        self.mlp()
+    }
+    fn coarse(&self) -> &Mlp {
         self.mlp()
     }
     fn target(&self) -> &[[f32; 3]] {

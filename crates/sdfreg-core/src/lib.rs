@@ -64,6 +64,7 @@
 
 pub mod cloud;
 pub mod field;
+pub mod grid_field;
 pub mod io;
 pub mod lidar;
 pub mod lm;
@@ -103,7 +104,9 @@ pub use report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
     RobustReport, ShiftSearchReport, Stages,
 };
-pub use robust::{Kernel, RobustMode, RobustSettings, MAD_TO_SIGMA, SCALE_SIGMAS};
+pub use robust::{
+    Kernel, RobustMode, RobustSettings, MAD_TO_SIGMA, OUTSIDE_SPACINGS, SCALE_SIGMAS,
+};
 pub use sdf_fit::FitSettings;
 pub use settings::{CoarseToFineSettings, MultistartSettings, RegisterSettings, MIN_POINTS};
 pub use shift_search::ShiftSearchSettings;

@@ -207,7 +207,11 @@ pub(crate) struct MeshSurface {
 
 impl Surface for MeshSurface {
     type Phi = MeshField;
+    type Coarse = MeshField;
     fn phi(&self) -> &MeshField {
+        &self.field
+    }
+    fn coarse(&self) -> &MeshField {
         &self.field
     }
     fn target(&self) -> &[[f32; 3]] {

@@ -15,6 +15,8 @@
 //! return the target's own units and frame. Files: [`SdfModel::save`] / [`SdfModel::load`]
 //! (`.sdfm`, a safetensors file; layout in [`crate::model_file`]).
 
+use std::sync::{Arc, OnceLock};
+
 use nalgebra::{Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -22,8 +24,10 @@ use rayon::prelude::*;
 
 use crate::cloud::{subsample, validate, Normalization};
 use crate::error::{Error, Role};
+use crate::field::Surface;
+use crate::grid_field::{Baked, BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
 use crate::mlp::{Mlp, MlpSettings};
-use crate::sdf_fit::SdfFitter;
+use crate::sdf_fit::{SdfFitter, Tree};
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::{Registration, Stage};
 
@@ -49,6 +53,37 @@ pub struct SdfModel {
     pub(crate) fitter: SdfFitter,
     pub(crate) mlp: MlpSettings,
     pub(crate) seed: u64,
+    /// Φ baked into a grid for the multi-start ([`crate::grid_field`]): made by
+    /// [`SdfModel::fit`], or by the first registration of a loaded model; derived from Φ
+    /// alone, so it is not stored in files.
+    pub(crate) grid: OnceLock<Arc<BakedGrid>>,
+}
+
+/// A stored model as the registration stages see it: Φ frozen (nothing is refined), the
+/// multi-start's first round reading Φ baked into a grid.
+#[derive(Clone)]
+pub(crate) struct Frozen<'a> {
+    fitter: &'a SdfFitter,
+    baked: Baked<'a, Mlp>,
+}
+
+impl<'a> Surface for Frozen<'a> {
+    type Phi = Mlp;
+    type Coarse = Baked<'a, Mlp>;
+    fn phi(&self) -> &Mlp {
+        self.fitter.mlp()
+    }
+    fn coarse(&self) -> &Baked<'a, Mlp> {
+        &self.baked
+    }
+    fn target(&self) -> &[[f32; 3]] {
+        self.fitter.target()
+    }
+    fn tree(&self) -> &Tree {
+        self.fitter.tree()
+    }
+    fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
+    fn refine(&mut self, _: usize, _: f32) {}
 }
 
 impl SdfModel {
@@ -69,8 +104,27 @@ impl SdfModel {
         validate(target, Role::Target, MIN_POINTS)?;
         crate::register::in_pool(settings.threads, || {
             let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-            Self::fit_drawing(target, settings, &mut rng, progress)
+            let model = Self::fit_drawing(target, settings, &mut rng, progress)?;
+            model.baked_grid();
+            Ok(model)
         })?
+    }
+
+    /// Φ baked into a grid (made on the first call).
+    pub(crate) fn baked_grid(&self) -> &BakedGrid {
+        self.grid
+            .get_or_init(|| Arc::new(BakedGrid::bake(self.mlp(), BAKED_CELLS, BAKED_HALF_EXTENT)))
+    }
+
+    /// The model as the registration stages see it with Φ frozen.
+    pub(crate) fn frozen(&self) -> Frozen<'_> {
+        Frozen {
+            fitter: &self.fitter,
+            baked: Baked {
+                grid: self.baked_grid(),
+                exact: self.mlp(),
+            },
+        }
     }
 
     /// The fit, drawing the target's subsample from `rng` (the registration's stream, so that
@@ -101,6 +155,7 @@ impl SdfModel {
             fitter,
             mlp: s.mlp.clone(),
             seed: s.seed,
+            grid: OnceLock::new(),
         })
     }
 
@@ -117,7 +172,7 @@ impl SdfModel {
     ) -> Result<Registration, Error> {
         crate::register::against(
             &self.norm,
-            &self.fitter,
+            &self.frozen(),
             source,
             init,
             settings,

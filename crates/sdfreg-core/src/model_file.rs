@@ -252,6 +252,7 @@ fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
         fitter,
         mlp: settings.mlp,
         seed: settings.seed,
+        grid: std::sync::OnceLock::new(),
     })
 }
 

@@ -18,6 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::cloud::{subsample, transformed_f32};
+use crate::field::Field;
 use crate::field::Surface;
 use crate::lm::{Kernel, Lm, LmSettings};
 use crate::sdf_fit::Tree;
@@ -128,13 +129,15 @@ pub(crate) struct Hypotheses {
 }
 
 /// The initial hypotheses for the unit-frame `source` against the pre-fitted Φ of `fit`, with
-/// `kernel` on the LM steps. `rng` draws the starts' source subsample.
+/// `kernel` on the LM steps. The starts' steps read [`Surface::coarse`] (but the identity
+/// start's), the finalists' Φ.
+/// `rng` draws the starts' source subsample.
 pub(crate) fn initial_hypotheses<S: Surface>(
     fit: &S,
     source: &[Point3<f64>],
     s: &MultistartSettings,
     lm: &LmSettings,
-    kernel: impl Fn(&S::Phi, &[Point3<f64>], &Isometry3<f64>) -> Kernel + Sync,
+    kernel: impl Fn(&dyn Field, &[Point3<f64>], &Isometry3<f64>) -> Kernel + Sync,
     rng: &mut ChaCha8Rng,
 ) -> Hypotheses {
     let c_src = crate::cloud::centroid(source).coords;
@@ -144,10 +147,9 @@ pub(crate) fn initial_hypotheses<S: Surface>(
         .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
         .sum::<Vector3<f64>>()
         / fit.target().len() as f64;
-    let phi = fit.phi();
     let points = subsample(source, s.points, rng);
     let tau2 = s.truncation * s.truncation;
-    let refine = |pose: Isometry3<f64>, steps: usize| {
+    let refine = |phi: &dyn Field, pose: Isometry3<f64>, steps: usize| {
         let mut solver = Lm::new(pose, lm);
         solver.run(phi, &points, kernel(phi, &points, &pose), steps);
         (
@@ -156,8 +158,15 @@ pub(crate) fn initial_hypotheses<S: Surface>(
         )
     };
     let starts = s.starts(c_src, c_tgt);
-    let mut candidates: Vec<(f64, Isometry3<f64>)> =
-        starts.par_iter().map(|p| refine(*p, s.lm_steps)).collect();
+    let mut candidates: Vec<(f64, Isometry3<f64>)> = starts
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            // The identity start, which the least-motion prior favours among ties, reads Φ.
+            let phi: &dyn Field = if i == 0 { fit.phi() } else { fit.coarse() };
+            refine(phi, *p, s.lm_steps)
+        })
+        .collect();
     // The identity start (plain centroid alignment) is always a finalist: with the least-motion
     // tie-break it wins whenever nothing fits clearly better. The others follow by score
     // (stable sort); starts that converged to the same pose count once.
@@ -171,7 +180,7 @@ pub(crate) fn initial_hypotheses<S: Surface>(
     }
     let finalists: Vec<(f64, Isometry3<f64>)> = kept
         .par_iter()
-        .map(|p| refine(*p, s.refine_steps))
+        .map(|p| refine(fit.phi(), *p, s.refine_steps))
         .collect();
     // Hypotheses: the least-motion pick among near-ties, the identity start and the best score
     // (distinct ones, at most `hypotheses`). The pre-fitted Φ is often too coarse to decide.

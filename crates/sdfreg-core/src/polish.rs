@@ -127,35 +127,125 @@ pub struct PolishOutcome {
     pub undone: bool,
 }
 
+/// What a source point's last local plane was made of, so that the next iterations, which move
+/// the point by ever smaller steps, need neither the k-d tree nor the plane fit while its
+/// nearest target points stay the same — with the same numbers as querying and fitting anew.
+///
+/// `base` is where the `k + 1` nearest target points were last found, at the (square-root)
+/// distances `radii`, strictly increasing. A point `x` within `δ` of `base` is within `δ` of
+/// its old distance to every target point, so while each gap `radiiᵢ₊₁ − radiiᵢ` exceeds `2δ`
+/// (and a rounding margin) the `k` nearest are the same points in the same order, and the
+/// plane fitted to them is the same. The plane is also kept across a new query that finds the
+/// same points in the same order.
+#[derive(Clone, Default)]
+struct PlaneCache {
+    /// The `k` nearest target points of the last query, in order.
+    items: Vec<u32>,
+    /// Their plane: centroid and normal; `None` when the last query found no target point
+    /// within the gate.
+    plane: Option<(Vector3<f64>, Vector3<f64>)>,
+    /// The last query point, when its `k + 1` distances were strictly increasing.
+    base: Option<Vector3<f64>>,
+    /// Distances from `base` to its `k + 1` nearest target points.
+    radii: Vec<f64>,
+}
+
+/// Margin for rounding when the k-d tree's f32 distances are compared through [`PlaneCache`]:
+/// far above f32's relative precision at unit scale.
+const ORDER_MARGIN: f64 = 1e-5;
+
+impl PlaneCache {
+    /// Whether the last plane certainly holds for `x`: `Some(true)` the same nearest points,
+    /// the nearest within `max_d`; `Some(false)` the nearest certainly beyond `max_d`; `None`
+    /// when only a query can tell.
+    fn holds(&self, x: &Vector3<f64>, max_d: f64) -> Option<bool> {
+        let base = self.base?;
+        let delta = (x - base).norm();
+        let margin = |r: f64| 2.0 * delta + ORDER_MARGIN * (1.0 + r);
+        let ordered = self.radii.windows(2).all(|w| w[1] - w[0] > margin(w[1]));
+        if !ordered {
+            return None;
+        }
+        let nearest = self.radii[0];
+        if nearest + delta + ORDER_MARGIN * (1.0 + nearest) < max_d {
+            // The plane is that of `base`'s points unless `base` was beyond the gate.
+            self.plane.map(|_| true)
+        } else if nearest - delta - ORDER_MARGIN * (1.0 + nearest) > max_d {
+            Some(false)
+        } else {
+            None
+        }
+    }
+}
+
 /// Distance of `x` to the plane fitted (PCA) through its `k` nearest target points, signed along
 /// that plane's normal, and the normal; `None` when `x` is farther than `max_d2` (squared) from
-/// every target point.
+/// every target point. `cache` holds what this point's last plane was made of
+/// ([`PlaneCache`]).
 fn local_plane(
     target: &[[f32; 3]],
     tree: &Tree,
     x: &Point3<f64>,
     k: usize,
     max_d2: f64,
+    cache: &mut PlaneCache,
 ) -> Option<(f64, Vector3<f64>)> {
+    let k = k.max(3);
+    match cache.holds(&x.coords, max_d2.sqrt()) {
+        Some(true) => {
+            let (mean, n) = cache.plane?;
+            return Some((n.dot(&(x.coords - mean)), n));
+        }
+        Some(false) => return None,
+        None => {}
+    }
     let xf = [x.x as f32, x.y as f32, x.z as f32];
-    let nn = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k.max(3)).unwrap());
+    // k + 1 points, for the gap that lets the next iterations skip the query; their first k
+    // are the k nearest in the same order when the distances strictly increase.
+    let more = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k + 1).unwrap());
+    let increasing = more.len() == k + 1 && more.windows(2).all(|w| w[0].distance < w[1].distance);
+    let nn = if increasing {
+        more
+    } else {
+        tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k).unwrap())
+    };
+    cache.base = increasing.then(|| Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
+    cache.radii.clear();
+    if increasing {
+        cache
+            .radii
+            .extend(nn.iter().map(|n| (n.distance as f64).sqrt()));
+    }
+    let nn = &nn[..k.min(nn.len())];
     if nn.first()?.distance as f64 > max_d2 {
+        // No plane for `base`: the next iterations may skip the query only to say so again.
+        cache.plane = None;
+        cache.items.clear();
         return None;
     }
-    let pts: Vec<Vector3<f64>> = nn
-        .iter()
-        .map(|n| {
-            let p = target[n.item as usize];
-            Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-        })
-        .collect();
-    let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-    let cov: Matrix3<f64> = pts
-        .iter()
-        .map(|p| (p - mean) * (p - mean).transpose())
-        .sum();
-    let eig = SymmetricEigen::new(cov);
-    let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+    let same = cache.plane.is_some()
+        && cache.items.len() == nn.len()
+        && cache.items.iter().zip(nn).all(|(&a, b)| a == b.item);
+    if !same {
+        let pts: Vec<Vector3<f64>> = nn
+            .iter()
+            .map(|n| {
+                let p = target[n.item as usize];
+                Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+            })
+            .collect();
+        let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+        let cov: Matrix3<f64> = pts
+            .iter()
+            .map(|p| (p - mean) * (p - mean).transpose())
+            .sum();
+        let eig = SymmetricEigen::new(cov);
+        let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+        cache.items.clear();
+        cache.items.extend(nn.iter().map(|n| n.item));
+        cache.plane = Some((mean, n));
+    }
+    let (mean, n) = cache.plane?;
     Some((n.dot(&(x.coords - mean)), n))
 }
 
@@ -163,7 +253,15 @@ fn local_plane(
 fn point_normal(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Vector3<f64>> {
     let q = target[i];
     let x = Point3::new(q[0] as f64, q[1] as f64, q[2] as f64);
-    local_plane(target, tree, &x, k, f64::INFINITY).map(|(_, n)| n)
+    local_plane(
+        target,
+        tree,
+        &x,
+        k,
+        f64::INFINITY,
+        &mut PlaneCache::default(),
+    )
+    .map(|(_, n)| n)
 }
 
 /// Which stage [`gauss_newton`] runs.
@@ -177,16 +275,18 @@ enum Residuals {
     Points,
 }
 
-/// Robust Gauss–Newton steps on the residuals `residual(x) → (r, n)` of the moved source points
-/// (row `[x × n; n]`); returns the pose, the iterations run, why it stopped and the last step
-/// (rotation in radians, translation in normalised units; infinite when none was taken).
-fn gauss_newton(
+/// Robust Gauss–Newton steps on the residuals `residual(x, cache) → (r, n)` of the moved source
+/// points (row `[x × n; n]`; `cache` is the point's own, kept across iterations); returns the
+/// pose, the iterations run, why it stopped and the last step (rotation in radians, translation
+/// in normalised units; infinite when none was taken).
+fn gauss_newton<C: Default + Send>(
     source: &[Point3<f64>],
     pose: Isometry3<f64>,
     s: &PolishSettings,
     stage: Residuals,
-    residual: impl Fn(&Point3<f64>) -> Option<(f64, Vector3<f64>)> + Sync,
+    residual: impl Fn(&Point3<f64>, &mut C) -> Option<(f64, Vector3<f64>)> + Sync,
 ) -> (Isometry3<f64>, usize, StopReason, [f64; 2]) {
+    let mut caches: Vec<C> = source.iter().map(|_| C::default()).collect();
     let start = pose;
     let mut pose = pose;
     let mut done = 0;
@@ -195,9 +295,10 @@ fn gauss_newton(
         done += 1;
         let terms: Vec<Option<(f64, Vector6<f64>)>> = source
             .par_iter()
-            .map(|p| {
+            .zip(caches.par_iter_mut())
+            .map(|(p, cache)| {
                 let x = pose * p;
-                let (r, n) = residual(&x)?;
+                let (r, n) = residual(&x, cache)?;
                 Some((r, jacobian_row(&x.coords, &n)))
             })
             .collect();
@@ -250,7 +351,11 @@ fn gauss_newton(
 
 /// Median over `points` of the distance to the nearest target point (excluding a point's own
 /// entry when `skip_self`).
-fn median_nn(points: impl Iterator<Item = [f32; 3]>, tree: &Tree, skip_self: bool) -> f64 {
+pub(crate) fn median_nn(
+    points: impl Iterator<Item = [f32; 3]>,
+    tree: &Tree,
+    skip_self: bool,
+) -> f64 {
     let k = NonZeroUsize::new(if skip_self { 2 } else { 1 }).unwrap();
     let mut d: Vec<f64> = points
         .map(|q| {
@@ -265,6 +370,13 @@ fn median_nn(points: impl Iterator<Item = [f32; 3]>, tree: &Tree, skip_self: boo
     d[d.len() / 2]
 }
 
+/// The target points' median spacing (distance to the nearest other target point), over at
+/// most about 2048 of them.
+pub(crate) fn target_spacing(target: &[[f32; 3]], tree: &Tree) -> f64 {
+    let step = (target.len() / 1024).max(1);
+    median_nn(target.iter().step_by(step).copied(), tree, true)
+}
+
 /// Polishes `pose` (unit frame, maps `source` into the target frame) against the `target`
 /// points and their k-d `tree`.
 pub fn polish(
@@ -275,8 +387,7 @@ pub fn polish(
     s: &PolishSettings,
 ) -> PolishOutcome {
     let start = *pose;
-    let step = (target.len() / 1024).max(1);
-    let spacing = median_nn(target.iter().step_by(step).copied(), tree, true);
+    let spacing = target_spacing(target, tree);
     let gate = if s.near_spacings > 0.0 {
         (s.near_spacings * spacing).min(s.max_distance)
     } else {
@@ -292,8 +403,8 @@ pub fn polish(
     let (mut stop_reason, mut last_step) = (StopReason::MaxIterations, [f64::INFINITY; 2]);
     for d in gates {
         let d2 = d * d;
-        let (p, n, stop, last) = gauss_newton(source, pose, s, Residuals::Planes, |x| {
-            local_plane(target, tree, x, k, d2)
+        let (p, n, stop, last) = gauss_newton(source, pose, s, Residuals::Planes, |x, cache| {
+            local_plane(target, tree, x, k, d2, cache)
         });
         (pose, stop_reason, last_step) = (p, stop, last);
         iterations += n;
@@ -307,19 +418,21 @@ pub fn polish(
     if s.iterations > 0 && s.snap {
         let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
             (0..target.len()).map(|_| OnceLock::new()).collect();
-        let (candidate, n, stop, last) = gauss_newton(source, pose, s, Residuals::Points, |x| {
-            let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
-            if nn.distance as f64 > s.max_distance * s.max_distance {
-                return None;
-            }
-            let i = nn.item as usize;
-            let n = (*normals[i].get_or_init(|| point_normal(target, tree, i, k)))?;
-            let q = target[i];
-            Some((
-                n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
-                n,
-            ))
-        });
+        let (candidate, n, stop, last) =
+            gauss_newton(source, pose, s, Residuals::Points, |x, _: &mut ()| {
+                let nn =
+                    tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+                if nn.distance as f64 > s.max_distance * s.max_distance {
+                    return None;
+                }
+                let i = nn.item as usize;
+                let n = (*normals[i].get_or_init(|| point_normal(target, tree, i, k)))?;
+                let q = target[i];
+                Some((
+                    n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
+                    n,
+                ))
+            });
         iterations += n;
         let on_target = source.iter().map(|p| {
             let x = candidate * p;
@@ -366,6 +479,40 @@ mod tests {
             .map(|p| Point3::new(p[0] as f64, p[1] as f64, p[2] as f64))
             .collect();
         (target, tree, source)
+    }
+
+    #[test]
+    fn a_kept_plane_is_bit_identical_to_a_fresh_query_and_fit() {
+        // Source points walked towards the target by ever smaller steps, as the polish moves
+        // them, some across the gate; the cache must skip queries and change no number.
+        let (target, tree, _) = blob_pair(3000, 0, 7);
+        let k = PolishSettings::default().neighbours;
+        let max_d2 = 0.03f64 * 0.03;
+        let mut skipped = 0;
+        let mut total = 0;
+        for (i, p) in target.iter().step_by(37).enumerate() {
+            let dir = Vector3::new(1.0, (i as f64 * 0.7).sin(), (i as f64 * 1.3).cos()).normalize();
+            let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let mut cache = PlaneCache::default();
+            for step in 0..40 {
+                let off = 0.05 * 0.8f64.powi(step) + 1e-4 * (step as f64 * 2.1).sin();
+                let x = Point3::from(q + dir * off);
+                let fresh = local_plane(&target, &tree, &x, k, max_d2, &mut PlaneCache::default());
+                let was = cache.holds(&x.coords, max_d2.sqrt());
+                let kept = local_plane(&target, &tree, &x, k, max_d2, &mut cache);
+                total += 1;
+                skipped += usize::from(was.is_some());
+                match (fresh, kept) {
+                    (None, None) => {}
+                    (Some((r, n)), Some((r2, n2))) => {
+                        assert_eq!(r.to_bits(), r2.to_bits(), "point {i} step {step}");
+                        assert_eq!(n, n2, "point {i} step {step}");
+                    }
+                    other => panic!("point {i} step {step}: {other:?}"),
+                }
+            }
+        }
+        assert!(skipped * 3 > total, "{skipped} of {total} queries skipped");
     }
 
     #[test]

@@ -34,7 +34,7 @@ use crate::cloud::{subsample, validate, Normalization};
 use crate::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::degeneracy::Degeneracy;
 use crate::error::{Error, Role};
-use crate::field::Surface;
+use crate::field::{Field, Surface};
 use crate::lm::{Lm, StopReason};
 use crate::measure::quality;
 use crate::model::SdfModel;
@@ -44,7 +44,9 @@ use crate::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
     RobustReport, ShiftSearchReport, Stages,
 };
-use crate::robust::{keep_rerun, rerun_settings, KernelPolicy, RobustMode};
+use crate::robust::{
+    keep_rerun, outside_share, rerun_settings, KernelPolicy, LeastSquaresFit, RobustMode,
+};
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::shift_search::{search, Searched};
 
@@ -198,6 +200,7 @@ pub(crate) fn track<'a>(
     check_settings(Some(init), settings)?;
     let frames: Vec<&[Point3<f64>]> = frames.into_iter().collect();
     in_pool(settings.threads, || {
+        let frozen = model.frozen();
         let mut last = *init;
         frames
             .into_iter()
@@ -206,7 +209,7 @@ pub(crate) fn track<'a>(
                 let r = validate(frame, Role::Source, MIN_POINTS).and_then(|()| {
                     against_in_pool(
                         &model.norm,
-                        &model.fitter,
+                        &frozen,
                         frame,
                         Some(&last),
                         settings,
@@ -275,7 +278,21 @@ fn register_drawn<S: Surface>(
         run(surface, &unit, &mut rng, init, s, policy, refine, progress)
     };
     let first = run(s, s.robust.first_run());
-    let mut r = robust_rerun(first, s, run);
+    let least = match s.robust.mode {
+        RobustMode::Auto { .. } => {
+            let pose = unit.norm.pose_to_unit(&first.t_target_source);
+            let moved = crate::cloud::transformed_f32(&unit.source, &pose);
+            LeastSquaresFit {
+                fitness: first.fitness,
+                outside_share: outside_share(&moved, surface.target(), surface.tree()),
+            }
+        }
+        _ => LeastSquaresFit {
+            fitness: first.fitness,
+            outside_share: f64::NAN,
+        },
+    };
+    let mut r = robust_rerun(first, least, s, run);
     r.time = start.elapsed();
     Ok(r)
 }
@@ -285,14 +302,17 @@ fn register_drawn<S: Surface>(
 /// fit is returned, with [`Stages::robust`] saying what happened.
 fn robust_rerun(
     first: Registration,
+    least: LeastSquaresFit,
     settings: &RegisterSettings,
     rerun: impl FnOnce(&RegisterSettings, KernelPolicy) -> Registration,
 ) -> Registration {
-    let least_squares_fitness = first.fitness;
-    let Some((scans, policy)) = rerun_settings(settings, least_squares_fitness) else {
+    let least_squares_fitness = least.fitness;
+    let least_squares_outside = least.outside_share;
+    let Some((scans, policy, cause)) = rerun_settings(settings, least) else {
         let robust = match settings.robust.mode {
             RobustMode::Auto { .. } => RobustReport::NotNeeded {
                 least_squares_fitness,
+                least_squares_outside,
             },
             RobustMode::Off => RobustReport::Off,
             _ => RobustReport::FromStart,
@@ -301,15 +321,22 @@ fn robust_rerun(
     };
     let second = rerun(&scans, policy);
     let robust_fitness = second.fitness;
-    if keep_rerun(&settings.robust.mode, least_squares_fitness, robust_fitness) {
+    if keep_rerun(
+        &settings.robust.mode,
+        cause,
+        least_squares_fitness,
+        robust_fitness,
+    ) {
         let report = RobustReport::RerunKept {
             least_squares_fitness,
+            least_squares_outside,
             robust_fitness,
         };
         with_robust(second, report)
     } else {
         let report = RobustReport::RerunRejected {
             least_squares_fitness,
+            least_squares_outside,
             robust_fitness,
         };
         with_robust(first, report)
@@ -510,7 +537,7 @@ fn initial_pose<S: Surface>(
         return (vec![unit.norm.pose_to_unit(t)], given);
     }
     progress(Stage::Multistart);
-    let kernel = |phi: &S::Phi, points: &[Point3<f64>], pose: &Isometry3<f64>| {
+    let kernel = |phi: &dyn Field, points: &[Point3<f64>], pose: &Isometry3<f64>| {
         kernel_at(phi, points, pose, policy, policy.kappa_start())
     };
     let found = initial_hypotheses(fit, &unit.source, &s.multistart, &s.lm, kernel, rng);

@@ -137,11 +137,16 @@ pub enum RobustReport {
     NotNeeded {
         /// The least-squares fitness.
         least_squares_fitness: f64,
+        /// The share of the source the least-squares result left outside the target's
+        /// coverage (beyond [`crate::OUTSIDE_SPACINGS`] target spacings).
+        least_squares_outside: f64,
     },
     /// The robust re-run fitted enough better and was returned.
     RerunKept {
         /// The least-squares fitness.
         least_squares_fitness: f64,
+        /// The share of the source outside the target's coverage at least squares.
+        least_squares_outside: f64,
         /// The robust run's fitness.
         robust_fitness: f64,
     },
@@ -149,6 +154,8 @@ pub enum RobustReport {
     RerunRejected {
         /// The least-squares fitness.
         least_squares_fitness: f64,
+        /// The share of the source outside the target's coverage at least squares.
+        least_squares_outside: f64,
         /// The robust run's fitness.
         robust_fitness: f64,
     },

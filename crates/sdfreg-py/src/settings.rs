@@ -338,10 +338,13 @@ settings_class! {
 /// Args:
 ///     mode: ``"auto"`` (least squares; a result fitting fewer than ``below_fitness`` of the
 ///         source points is redone with the kernel and a multi-start tie of ``rerun_tie``,
-///         kept if it fits ``gain`` times as many), ``"on"`` (the kernel from the start: scans
+///         kept if it fits ``gain`` times as many; a result leaving more than
+///         ``outside_share`` of the source outside the target's coverage — beyond 10 target
+///         point spacings — is redone too, kept if it fits more points), ``"on"`` (the kernel from the start: scans
 ///         that overlap in part), ``"off"`` (least squares) or ``"fixed"`` (the kernel with
 ///         the fixed ``scale``).
 ///     below_fitness: See ``mode="auto"``.
+///     outside_share: See ``mode="auto"``.
 ///     gain: See ``mode="auto"``.
 ///     rerun_tie: See ``mode="auto"``.
 ///     scale: The kernel's scale for ``mode="fixed"`` (normalised).
@@ -357,14 +360,16 @@ impl PyRobustSettings {
         s.validate().map_err(error::registration)
     }
 
-    /// The re-run's fitness threshold, gain and tie (``mode="auto"``; the defaults otherwise).
-    fn auto_rule(&self) -> (f64, f64, f64) {
+    /// The re-run's fitness threshold, gain, tie and outside share (``mode="auto"``; the
+    /// defaults otherwise).
+    fn auto_rule(&self) -> (f64, f64, f64, f64) {
         let auto = |m: RobustMode| match m {
             RobustMode::Auto {
                 below_fitness,
+                outside_share,
                 gain,
                 tie,
-            } => Some((below_fitness, gain, tie)),
+            } => Some((below_fitness, gain, tie, outside_share)),
             _ => None,
         };
         auto(self.0.mode)
@@ -376,11 +381,12 @@ impl PyRobustSettings {
 #[pymethods]
 impl PyRobustSettings {
     #[new]
-    #[pyo3(signature = (*, mode = "auto", below_fitness = 0.35, gain = 1.3, rerun_tie = 0.05, scale = None, kappa_start = 3.0, kappa_end = 1.0, floor = 0.002))]
+    #[pyo3(signature = (*, mode = "auto", below_fitness = 0.35, outside_share = 0.2, gain = 1.3, rerun_tie = 0.05, scale = None, kappa_start = 3.0, kappa_end = 1.0, floor = 0.002))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         mode: &str,
         below_fitness: f64,
+        outside_share: f64,
         gain: f64,
         rerun_tie: f64,
         scale: Option<f64>,
@@ -401,6 +407,7 @@ impl PyRobustSettings {
             }
             ("auto", None) => RobustMode::Auto {
                 below_fitness,
+                outside_share,
                 gain,
                 tie: rerun_tie,
             },
@@ -446,6 +453,12 @@ impl PyRobustSettings {
 
     /// See ``mode="auto"``.
     #[getter]
+    fn outside_share(&self) -> f64 {
+        self.auto_rule().3
+    }
+
+    /// See ``mode="auto"``.
+    #[getter]
     fn gain(&self) -> f64 {
         self.auto_rule().1
     }
@@ -480,12 +493,13 @@ impl PyRobustSettings {
     }
 
     fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
-        let (below_fitness, gain, tie) = self.auto_rule();
+        let (below_fitness, gain, tie, outside_share) = self.auto_rule();
         repr(
             "RobustSettings",
             &[
                 ("mode", self.mode().into_bound_py_any(py)?),
                 ("below_fitness", below_fitness.expose(py)?),
+                ("outside_share", outside_share.expose(py)?),
                 ("gain", gain.expose(py)?),
                 ("rerun_tie", tie.expose(py)?),
                 ("scale", self.scale().into_bound_py_any(py)?),

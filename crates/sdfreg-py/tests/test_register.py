@@ -190,7 +190,13 @@ def test_settings_classes_mirror_the_core_with_its_defaults(group: str) -> None:
 def test_robust_settings_mirror_the_core() -> None:
     core = _sdfreg._core_defaults()["robust"]
     r = sdfreg.RobustSettings()
-    assert core["mode"] == {"kind": "auto", "below_fitness": r.below_fitness, "gain": r.gain, "tie": r.rerun_tie}
+    assert core["mode"] == {
+        "kind": "auto",
+        "below_fitness": r.below_fitness,
+        "outside_share": r.outside_share,
+        "gain": r.gain,
+        "tie": r.rerun_tie,
+    }
     assert (r.kappa_start, r.kappa_end, r.floor) == (core["kappa_start"], core["kappa_end"], core["floor"])
     assert r.mode == "auto" and r.scale is None
     fixed = sdfreg.RobustSettings(mode="fixed", scale=0.01)

@@ -48,11 +48,12 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let mut all = Vec::new();
     let mut summaries = Vec::new();
     let mut written = Vec::new();
+    let mut via_models = Vec::new();
     for &protocol in &protocols {
         let bar = crate::progress_bar(a.pairs as u64);
         bar.set_message(protocol.name());
         let mut results = Vec::new();
-        let mut fit_times = Vec::new();
+        let mut via = report::ViaModel::default();
         for i in 0..a.pairs {
             let (name, shape) = &shapes[i % shapes.len()];
             let pair = pairs::seeded_pair(shape, protocol, i, a.common.seed);
@@ -64,9 +65,17 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 continue;
             }
             let r = if a.via_model {
+                // The full call on the same pair, for the time against a stored model as a
+                // share of it, measured in the same run.
+                let full = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
+                    .with_context(|| format!("pair {i} ({name})"))?;
+                via.full_times.push(full.time.as_secs_f64());
+                let points = (pair.source.len(), pair.target.len());
+                let full = PairResult::new(protocol, i, name, points, &full, &pair.t_target_source);
+                via.full_errors.push(full.rotation_error_deg);
                 let start = std::time::Instant::now();
                 let model = SdfModel::fit(&pair.target, &settings);
-                fit_times.push(start.elapsed().as_secs_f64());
+                via.fit_times.push(start.elapsed().as_secs_f64());
                 model.and_then(|m| m.register(&pair.source, None, &settings))
             } else {
                 sdfreg_core::register(&pair.source, &pair.target, None, &settings)
@@ -89,7 +98,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         let s = summarise(&protocol, &results);
         report::protocol(&s, &results);
         if a.via_model {
-            report::fit_times(&fit_times, s.median_time_s);
+            via_models.push(via.print(&protocol.name(), s.median_time_s));
         }
         summaries.push(s);
         all.extend(results);
@@ -117,6 +126,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
             "settings": settings,
             "summary": summaries,
             "robustness": robustness,
+            "via_model": a.via_model.then_some(via_models),
             "pairs": all,
         });
         std::fs::write(path, serde_json::to_string_pretty(&json)? + "\n")

@@ -214,6 +214,7 @@ class RobustSettings:
         *,
         mode: str = "auto",
         below_fitness: float = 0.35,
+        outside_share: float = 0.2,
         gain: float = 1.3,
         rerun_tie: float = 0.05,
         scale: Optional[float] = None,
@@ -226,6 +227,8 @@ class RobustSettings:
         """``"auto"``, ``"on"``, ``"off"`` or ``"fixed"``."""
     @property
     def below_fitness(self) -> float: ...
+    @property
+    def outside_share(self) -> float: ...
     @property
     def gain(self) -> float: ...
     @property
