@@ -4,13 +4,15 @@
 //! scene work (issue 13).
 //!
 //!     cargo bench --bench lidar_pairs
+//!     cargo bench --bench lidar_pairs -- --write DIR   # also DIR/{street,room}/{source,target}.ply
+//!                                                      # and gt.txt, for benches/lidar_compare.py
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use sdfreg_core::lidar::{scan, Scene, Sensor};
 use sdfreg_core::se3::pose_errors;
-use sdfreg_core::{register, RegisterSettings};
+use sdfreg_core::{io::write_point_cloud, register, RegisterSettings};
 
 fn pose(x: f64, y: f64, z: f64, yaw_deg: f64) -> Isometry3<f64> {
     Isometry3::from_parts(
@@ -19,9 +21,24 @@ fn pose(x: f64, y: f64, z: f64, yaw_deg: f64) -> Isometry3<f64> {
     )
 }
 
+/// `--write DIR` from the command line (cargo bench passes `--bench` too).
+fn write_dir() -> Option<std::path::PathBuf> {
+    let args: Vec<String> = std::env::args().collect();
+    let i = args.iter().position(|a| a == "--write")?;
+    match args.get(i + 1) {
+        Some(dir) => Some(dir.into()),
+        None => {
+            eprintln!("lidar_pairs: --write needs a directory");
+            std::process::exit(2);
+        }
+    }
+}
+
 fn main() {
+    let write = write_dir();
     let cases = [
         (
+            "street",
             "street (100 m, 32 beams), 1.2 m and 3° apart",
             Scene::street(100.0, &mut ChaCha8Rng::seed_from_u64(1)),
             Sensor::spinning_32(),
@@ -29,6 +46,7 @@ fn main() {
             pose(1.2, -1.3, 1.8, 3.0),
         ),
         (
+            "room",
             "room (6 × 4 m, 64 beams), 0.58 m and 4° apart",
             Scene::room(&mut ChaCha8Rng::seed_from_u64(2)),
             Sensor::spinning_64(),
@@ -37,11 +55,22 @@ fn main() {
         ),
     ];
     let settings = RegisterSettings::default();
-    for (name, scene, sensor, a, b) in cases {
+    for (key, name, scene, sensor, a, b) in cases {
         let target = scan(&scene, &sensor, &a, 1);
         let source = scan(&scene, &sensor, &b, 2);
         let truth = a.inverse() * b;
         println!("{name}: {} / {} points", source.len(), target.len());
+        if let Some(dir) = &write {
+            let dir = dir.join(key);
+            std::fs::create_dir_all(&dir).expect("create the pair's directory");
+            write_point_cloud(dir.join("source.ply"), &source).expect("write source.ply");
+            write_point_cloud(dir.join("target.ply"), &target).expect("write target.ply");
+            let m = truth.to_homogeneous();
+            let rows: Vec<String> = (0..4)
+                .map(|i| format!("{} {} {} {}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]))
+                .collect();
+            std::fs::write(dir.join("gt.txt"), rows.join("\n") + "\n").expect("write gt.txt");
+        }
         for (start, init) in [
             ("no guess", None),
             ("identity", Some(Isometry3::identity())),
