@@ -90,6 +90,7 @@ pub fn run(a: BatchArgs) -> Result<()> {
         written: 0,
         error: None,
         bar: &bar,
+        lines: ProgressLines::new(pending.len()),
     });
     let start = Instant::now();
     // Rows whose files cannot be read are recorded as failed right away; the rest register.
@@ -154,6 +155,54 @@ struct Output<'a> {
     /// The first write that failed; no line is written after it.
     error: Option<anyhow::Error>,
     bar: &'a ProgressBar,
+    /// Progress as plain lines, when stderr is not a terminal (the bar is hidden then).
+    lines: Option<ProgressLines>,
+}
+
+/// Progress as plain lines on stderr for logs (pipelines, cluster jobs), where a bar cannot
+/// redraw: one line at each tenth of the pairs, and at least every [`Self::EVERY`].
+struct ProgressLines {
+    total: usize,
+    start: Instant,
+    last: Instant,
+    /// The tenth of the pairs whose completion prints the next line.
+    next_tenth: usize,
+}
+
+impl ProgressLines {
+    /// The longest time between two lines.
+    const EVERY: std::time::Duration = std::time::Duration::from_secs(60);
+
+    /// Lines for `total` pairs, when stderr is not a terminal.
+    fn new(total: usize) -> Option<Self> {
+        use std::io::IsTerminal;
+        let now = Instant::now();
+        (total > 0 && !std::io::stderr().is_terminal()).then_some(Self {
+            total,
+            start: now,
+            last: now,
+            next_tenth: 1,
+        })
+    }
+
+    /// Prints a line if `done` pairs complete a tenth, or the last line is old.
+    fn update(&mut self, done: usize, failed: usize) {
+        let now = Instant::now();
+        let tenth = done * 10 / self.total;
+        if tenth < self.next_tenth && now - self.last < Self::EVERY {
+            return;
+        }
+        self.next_tenth = tenth + 1;
+        self.last = now;
+        let seconds = (now - self.start).as_secs_f64().max(1e-9);
+        let rate = done as f64 / seconds;
+        let left = (self.total - done) as f64 / rate.max(1e-9);
+        eprintln!(
+            "sdfreg batch: {done}/{} pairs ({failed} failed), {rate:.2} pairs/s, {} left",
+            self.total,
+            indicatif::HumanDuration(std::time::Duration::from_secs_f64(left.min(1e9)))
+        );
+    }
 }
 
 impl Output<'_> {
@@ -190,6 +239,9 @@ impl Output<'_> {
             self.bar.set_message(format!("{} failed", self.failed));
         }
         self.bar.inc(1);
+        if let Some(lines) = &mut self.lines {
+            lines.update(self.written, self.failed);
+        }
     }
 }
 

@@ -638,6 +638,12 @@ fn batch_registers_each_row_as_register_does_records_failures_and_resumes() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(3), "{err}");
     assert!(err.contains("1 of 4 pairs failed"), "{err}");
+    // stderr is not a terminal here: progress comes as lines, the last at 4 of 4.
+    assert!(
+        err.contains("sdfreg batch: 4/4 pairs (1 failed), "),
+        "{err}"
+    );
+    assert!(err.contains(" pairs/s, "), "{err}");
     let records = batch_records(&d.join("out.jsonl"));
     assert_eq!(records.keys().copied().collect::<Vec<_>>(), [1, 2, 3, 4]);
     let ok: Vec<bool> = records
