@@ -1,19 +1,22 @@
-//! Φ baked into a grid: the multi-start's field against a stored model.
+//! Φ baked into a grid: the multi-start's field against a stored model or a mesh.
 //!
 //! The multi-start refines 168 starts by a few LM steps each, and against a stored model (Φ
-//! frozen) that is half the time of a registration, nearly all of it evaluating the MLP. Φ is
-//! fixed there, so it is sampled once — value and gradient at the nodes of a regular grid over
+//! frozen) that is half the time of a registration, nearly all of it evaluating the MLP (against
+//! a mesh's exact distance, most of it). Φ is fixed there, so it is sampled once — value and gradient at the nodes of a regular grid over
 //! the unit frame — and the starts read it by trilinear interpolation of both (≈ 30 times
 //! cheaper than the MLP). Points outside the grid are evaluated by the MLP itself, so the
 //! field is defined everywhere. Only the first round of the multi-start uses it: its finalists,
 //! the alternations, the final LM and every query read the MLP (the grid's few-thousandths
 //! error only moves where a start's five coarse steps end).
 //!
-//! [`BakedGrid::bake`] makes the grid; [`Baked`] is the [`Field`] that reads it.
+//! [`BakedGrid::bake`] makes the grid; [`Baked`] is the [`Field`] that reads it; `WithGrid`
+//! (crate-private) is a target with its grid as the registration stages see it
+//! ([`crate::SdfModel::register`], [`crate::MeshModel::register`]).
 
 use rayon::prelude::*;
 
-use crate::field::Field;
+use crate::field::{Field, Surface};
+use crate::sdf_fit::Tree;
 
 /// Cells along each side of the grid of a stored model ([`crate::SdfModel`]). 48 cells over
 /// [`BAKED_HALF_EXTENT`] × 2 = 1.5 unit lengths: a cell of 0.031 (the target's largest side
@@ -159,6 +162,54 @@ impl<F: Field + ?Sized> Field for Baked<'_, F> {
             }
         }
     }
+}
+
+/// A target whose Φ is fixed, as the registration stages see it: nothing is refined, and the
+/// multi-start's first round reads Φ baked into `grid`.
+pub(crate) struct WithGrid<'a, S: Surface> {
+    surface: &'a S,
+    baked: Baked<'a, S::Phi>,
+}
+
+impl<'a, S: Surface> WithGrid<'a, S> {
+    /// `surface` with its Φ's `grid`.
+    pub(crate) fn new(surface: &'a S, grid: &'a BakedGrid) -> Self {
+        Self {
+            surface,
+            baked: Baked {
+                grid,
+                exact: surface.phi(),
+            },
+        }
+    }
+}
+
+impl<S: Surface> Clone for WithGrid<'_, S> {
+    fn clone(&self) -> Self {
+        Self {
+            surface: self.surface,
+            baked: self.baked,
+        }
+    }
+}
+
+impl<'a, S: Surface> Surface for WithGrid<'a, S> {
+    type Phi = S::Phi;
+    type Coarse = Baked<'a, S::Phi>;
+    fn phi(&self) -> &S::Phi {
+        self.surface.phi()
+    }
+    fn coarse(&self) -> &Baked<'a, S::Phi> {
+        &self.baked
+    }
+    fn target(&self) -> &[[f32; 3]] {
+        self.surface.target()
+    }
+    fn tree(&self) -> &Tree {
+        self.surface.tree()
+    }
+    fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
+    fn refine(&mut self, _: usize, _: f32) {}
 }
 
 #[cfg(test)]

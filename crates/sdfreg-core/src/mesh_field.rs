@@ -21,6 +21,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::cloud::{validate, Normalization};
 use crate::error::{Error, Role};
 use crate::field::{Field, Surface};
+use crate::grid_field::{BakedGrid, WithGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
 use crate::sdf_fit::{build_tree, Tree};
 use crate::{RegisterSettings, Registration};
 
@@ -230,13 +231,16 @@ impl Surface for MeshSurface {
 pub struct MeshModel {
     norm: Normalization,
     surface: MeshSurface,
+    /// The distance baked into a grid for the multi-start ([`crate::grid_field`]).
+    grid: std::sync::Arc<BakedGrid>,
 }
 
 impl MeshModel {
     /// The model of the mesh `vertices` (user units) and `triangles` (indices into
     /// `vertices`). The polish and the quality figures use
     /// [`RegisterSettings::max_target_points`] points sampled uniformly by area on the faces
-    /// (seeded by [`RegisterSettings::seed`]). Fails on a non-finite vertex, an index out of
+    /// (seeded by [`RegisterSettings::seed`]); the multi-start reads the distance baked into a
+    /// grid, made here ([`crate::grid_field`]). Fails on a non-finite vertex, an index out of
     /// range, no triangles or no area.
     pub fn new(
         vertices: &[Point3<f64>],
@@ -263,6 +267,9 @@ impl MeshModel {
         .ok_or_else(|| Error::InvalidMesh("the triangles have no area".into()))?;
         let target: Vec<[f32; 3]> = samples.iter().map(|p| norm.to_unit(p)).collect();
         let tree = build_tree(&target);
+        let grid = crate::register::in_pool(settings.threads, || {
+            BakedGrid::bake(&field, BAKED_CELLS, BAKED_HALF_EXTENT)
+        })?;
         Ok(MeshModel {
             norm,
             surface: MeshSurface {
@@ -270,6 +277,7 @@ impl MeshModel {
                 target,
                 tree,
             },
+            grid: std::sync::Arc::new(grid),
         })
     }
 
@@ -290,7 +298,7 @@ impl MeshModel {
     ) -> Result<Registration, Error> {
         crate::register::against(
             &self.norm,
-            &self.surface,
+            &WithGrid::new(&self.surface, &self.grid),
             source,
             init,
             settings,

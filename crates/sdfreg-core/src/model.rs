@@ -24,10 +24,9 @@ use rayon::prelude::*;
 
 use crate::cloud::{subsample, validate, Normalization};
 use crate::error::{Error, Role};
-use crate::field::Surface;
-use crate::grid_field::{Baked, BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
+use crate::grid_field::{BakedGrid, WithGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
 use crate::mlp::{Mlp, MlpSettings};
-use crate::sdf_fit::{SdfFitter, Tree};
+use crate::sdf_fit::SdfFitter;
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::{Registration, Stage};
 
@@ -57,33 +56,6 @@ pub struct SdfModel {
     /// [`SdfModel::fit`], or by the first registration of a loaded model; derived from Φ
     /// alone, so it is not stored in files.
     pub(crate) grid: OnceLock<Arc<BakedGrid>>,
-}
-
-/// A stored model as the registration stages see it: Φ frozen (nothing is refined), the
-/// multi-start's first round reading Φ baked into a grid.
-#[derive(Clone)]
-pub(crate) struct Frozen<'a> {
-    fitter: &'a SdfFitter,
-    baked: Baked<'a, Mlp>,
-}
-
-impl<'a> Surface for Frozen<'a> {
-    type Phi = Mlp;
-    type Coarse = Baked<'a, Mlp>;
-    fn phi(&self) -> &Mlp {
-        self.fitter.mlp()
-    }
-    fn coarse(&self) -> &Baked<'a, Mlp> {
-        &self.baked
-    }
-    fn target(&self) -> &[[f32; 3]] {
-        self.fitter.target()
-    }
-    fn tree(&self) -> &Tree {
-        self.fitter.tree()
-    }
-    fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
-    fn refine(&mut self, _: usize, _: f32) {}
 }
 
 impl SdfModel {
@@ -117,14 +89,8 @@ impl SdfModel {
     }
 
     /// The model as the registration stages see it with Φ frozen.
-    pub(crate) fn frozen(&self) -> Frozen<'_> {
-        Frozen {
-            fitter: &self.fitter,
-            baked: Baked {
-                grid: self.baked_grid(),
-                exact: self.mlp(),
-            },
-        }
+    pub(crate) fn frozen(&self) -> WithGrid<'_, SdfFitter> {
+        WithGrid::new(&self.fitter, self.baked_grid())
     }
 
     /// The fit, drawing the target's subsample from `rng` (the registration's stream, so that
