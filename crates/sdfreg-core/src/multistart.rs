@@ -18,8 +18,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::cloud::{subsample, transformed_f32};
-use crate::field::Field;
-use crate::field::Surface;
+use crate::field::{Field, Surface};
 use crate::lm::{Kernel, Lm, LmSettings};
 use crate::sdf_fit::Tree;
 use crate::settings::MultistartSettings;

@@ -178,6 +178,68 @@ impl PlaneCache {
     }
 }
 
+impl PlaneCache {
+    /// Queries the `k` (and, for the next iterations' gap, `k + 1`) nearest target points of
+    /// `x` and refits the plane unless they are the same points in the same order; `None`
+    /// (and no plane) when the nearest is farther than `max_d2` (squared).
+    fn refresh(
+        &mut self,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        x: &Point3<f64>,
+        k: usize,
+        max_d2: f64,
+    ) -> Option<()> {
+        let xf = [x.x as f32, x.y as f32, x.z as f32];
+        // The first k of k + 1 are the k nearest in the same order when the distances
+        // strictly increase.
+        let more = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k + 1).unwrap());
+        let increasing =
+            more.len() == k + 1 && more.windows(2).all(|w| w[0].distance < w[1].distance);
+        let nn = if increasing {
+            more
+        } else {
+            tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k).unwrap())
+        };
+        self.base = increasing.then(|| Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
+        self.radii.clear();
+        if increasing {
+            self.radii
+                .extend(nn.iter().map(|n| (n.distance as f64).sqrt()));
+        }
+        let nn = &nn[..k.min(nn.len())];
+        if nn.first()?.distance as f64 > max_d2 {
+            // No plane for `base`: the next iterations may skip the query only to say so again.
+            self.plane = None;
+            self.items.clear();
+            return None;
+        }
+        let same = self.plane.is_some()
+            && self.items.len() == nn.len()
+            && self.items.iter().zip(nn).all(|(&a, b)| a == b.item);
+        if !same {
+            let pts: Vec<Vector3<f64>> = nn
+                .iter()
+                .map(|n| {
+                    let p = target[n.item as usize];
+                    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+                })
+                .collect();
+            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+            let cov: Matrix3<f64> = pts
+                .iter()
+                .map(|p| (p - mean) * (p - mean).transpose())
+                .sum();
+            let eig = SymmetricEigen::new(cov);
+            let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+            self.items.clear();
+            self.items.extend(nn.iter().map(|n| n.item));
+            self.plane = Some((mean, n));
+        }
+        Some(())
+    }
+}
+
 /// Distance of `x` to the plane fitted (PCA) through its `k` nearest target points, signed along
 /// that plane's normal, and the normal; `None` when `x` is farther than `max_d2` (squared) from
 /// every target point. `cache` holds what this point's last plane was made of
@@ -190,60 +252,10 @@ fn local_plane(
     max_d2: f64,
     cache: &mut PlaneCache,
 ) -> Option<(f64, Vector3<f64>)> {
-    let k = k.max(3);
     match cache.holds(&x.coords, max_d2.sqrt()) {
-        Some(true) => {
-            let (mean, n) = cache.plane?;
-            return Some((n.dot(&(x.coords - mean)), n));
-        }
+        Some(true) => {}
         Some(false) => return None,
-        None => {}
-    }
-    let xf = [x.x as f32, x.y as f32, x.z as f32];
-    // k + 1 points, for the gap that lets the next iterations skip the query; their first k
-    // are the k nearest in the same order when the distances strictly increase.
-    let more = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k + 1).unwrap());
-    let increasing = more.len() == k + 1 && more.windows(2).all(|w| w[0].distance < w[1].distance);
-    let nn = if increasing {
-        more
-    } else {
-        tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k).unwrap())
-    };
-    cache.base = increasing.then(|| Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
-    cache.radii.clear();
-    if increasing {
-        cache
-            .radii
-            .extend(nn.iter().map(|n| (n.distance as f64).sqrt()));
-    }
-    let nn = &nn[..k.min(nn.len())];
-    if nn.first()?.distance as f64 > max_d2 {
-        // No plane for `base`: the next iterations may skip the query only to say so again.
-        cache.plane = None;
-        cache.items.clear();
-        return None;
-    }
-    let same = cache.plane.is_some()
-        && cache.items.len() == nn.len()
-        && cache.items.iter().zip(nn).all(|(&a, b)| a == b.item);
-    if !same {
-        let pts: Vec<Vector3<f64>> = nn
-            .iter()
-            .map(|n| {
-                let p = target[n.item as usize];
-                Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-            })
-            .collect();
-        let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-        let cov: Matrix3<f64> = pts
-            .iter()
-            .map(|p| (p - mean) * (p - mean).transpose())
-            .sum();
-        let eig = SymmetricEigen::new(cov);
-        let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
-        cache.items.clear();
-        cache.items.extend(nn.iter().map(|n| n.item));
-        cache.plane = Some((mean, n));
+        None => cache.refresh(target, tree, x, k.max(3), max_d2)?,
     }
     let (mean, n) = cache.plane?;
     Some((n.dot(&(x.coords - mean)), n))

@@ -278,46 +278,43 @@ fn register_drawn<S: Surface>(
         run(surface, &unit, &mut rng, init, s, policy, refine, progress)
     };
     let first = run(s, s.robust.first_run());
-    let least = match s.robust.mode {
-        RobustMode::Auto { .. } => {
-            let pose = unit.norm.pose_to_unit(&first.t_target_source);
-            let moved = crate::cloud::transformed_f32(&unit.source, &pose);
-            LeastSquaresFit {
-                fitness: first.fitness,
-                outside_share: outside_share(&moved, surface.target(), surface.tree()),
-            }
-        }
-        _ => LeastSquaresFit {
-            fitness: first.fitness,
-            outside_share: f64::NAN,
-        },
+    let outside = |r: &Registration| {
+        let pose = unit.norm.pose_to_unit(&r.t_target_source);
+        let moved = crate::cloud::transformed_f32(&unit.source, &pose);
+        outside_share(&moved, surface.target(), surface.tree())
     };
-    let mut r = robust_rerun(first, least, s, run);
+    let mut r = robust_rerun(first, s, outside, run);
     r.time = start.elapsed();
     Ok(r)
 }
 
 /// Stage 6: the robust re-run of [`RobustMode::Auto`] after a least-squares result that fits
 /// poorly (most likely partial overlap: points beyond the target's coverage pull); the better
-/// fit is returned, with [`Stages::robust`] saying what happened.
+/// fit is returned, with [`Stages::robust`] saying what happened. `outside` gives the share of
+/// the source a result leaves outside the target's coverage (asked in that mode only).
 fn robust_rerun(
     first: Registration,
-    least: LeastSquaresFit,
     settings: &RegisterSettings,
+    outside: impl FnOnce(&Registration) -> f64,
     rerun: impl FnOnce(&RegisterSettings, KernelPolicy) -> Registration,
 ) -> Registration {
+    match settings.robust.mode {
+        RobustMode::Auto { .. } => {}
+        RobustMode::Off => return with_robust(first, RobustReport::Off),
+        _ => return with_robust(first, RobustReport::FromStart),
+    }
+    let least = LeastSquaresFit {
+        fitness: first.fitness,
+        outside_share: outside(&first),
+    };
     let least_squares_fitness = least.fitness;
     let least_squares_outside = least.outside_share;
     let Some((scans, policy, cause)) = rerun_settings(settings, least) else {
-        let robust = match settings.robust.mode {
-            RobustMode::Auto { .. } => RobustReport::NotNeeded {
-                least_squares_fitness,
-                least_squares_outside,
-            },
-            RobustMode::Off => RobustReport::Off,
-            _ => RobustReport::FromStart,
+        let report = RobustReport::NotNeeded {
+            least_squares_fitness,
+            least_squares_outside,
         };
-        return with_robust(first, robust);
+        return with_robust(first, report);
     };
     let second = rerun(&scans, policy);
     let robust_fitness = second.fitness;

@@ -114,7 +114,7 @@ impl RobustMode {
     /// [`RobustMode::Auto`] with its measured defaults.
     pub const AUTO: RobustMode = RobustMode::Auto {
         below_fitness: 0.35,
-        outside_share: 0.2,
+        outside_share: DEFAULT_OUTSIDE_SHARE,
         gain: 1.3,
         tie: 0.05,
     };
@@ -269,8 +269,12 @@ impl KernelPolicy {
     }
 }
 
+/// [`RobustMode::Auto`]'s default `outside_share` (see there).
+const DEFAULT_OUTSIDE_SHARE: f64 = 0.2;
+
+/// For settings written before `outside_share` existed.
 fn default_outside_share() -> f64 {
-    0.2
+    DEFAULT_OUTSIDE_SHARE
 }
 
 /// Source points farther than this many target spacings (the target points' median distance

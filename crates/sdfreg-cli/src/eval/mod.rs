@@ -64,13 +64,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
             if a.pairs_only {
                 continue;
             }
+            let points = (pair.source.len(), pair.target.len());
             let r = if a.via_model {
                 // The full call on the same pair, for the time against a stored model as a
                 // share of it, measured in the same run.
                 let full = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
                     .with_context(|| format!("pair {i} ({name})"))?;
                 via.full_times.push(full.time.as_secs_f64());
-                let points = (pair.source.len(), pair.target.len());
                 let full = PairResult::new(protocol, i, name, points, &full, &pair.t_target_source);
                 via.full_errors.push(full.rotation_error_deg);
                 let start = std::time::Instant::now();
@@ -81,7 +81,6 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 sdfreg_core::register(&pair.source, &pair.target, None, &settings)
             }
             .with_context(|| format!("pair {i} ({name})"))?;
-            let points = (pair.source.len(), pair.target.len());
             results.push(PairResult::new(
                 protocol,
                 i,

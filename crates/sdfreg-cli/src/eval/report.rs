@@ -1,7 +1,7 @@
 //! The evaluation's printed report: a Markdown table row per protocol, its failures and flagged
 //! pairs, and the paper's robustness line.
 
-use super::stats::{PairResult, Robustness, Summary};
+use super::stats::{median, PairResult, Robustness, Summary};
 
 /// The table's header.
 pub fn header() {
@@ -52,7 +52,6 @@ pub fn protocol(s: &Summary, results: &[PairResult]) {
     }
 }
 
-/// With `--via-model`: the median fit time against the median registration through the model.
 /// `--via-model`'s figures of one protocol, besides the table's (which are the registrations
 /// against the model).
 #[derive(Default)]
@@ -85,12 +84,6 @@ impl ViaModel {
             "full_register_rotation_error_mean_deg": full_mean,
         })
     }
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut t = v.to_vec();
-    t.sort_by(f64::total_cmp);
-    t.get(t.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 /// The paper's robustness line.

@@ -95,7 +95,8 @@ pub struct Summary {
     pub median_time_s: f64,
 }
 
-fn median(v: &[f64]) -> f64 {
+/// The median (the mean of the two middle values for an even count); NaN when empty.
+pub fn median(v: &[f64]) -> f64 {
     let mut v = v.to_vec();
     v.sort_by(f64::total_cmp);
     let n = v.len();
