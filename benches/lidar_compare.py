@@ -11,6 +11,12 @@ registered from several starts: the identity (the scans' own offset: 1.2 m / 3°
 with no guess at all (its multi-start). Prints per pair, start and method the rotation error (°),
 translation error (m) and time; `--json` keeps them.
 
+"sdfreg model" registers against the target's model fitted once (`sdfreg.fit`, timed apart and
+printed with its kind, voxel and corrections) with Φ frozen: what a robot that keeps a map
+does. Below each pair, the median of 7 registrations from the identity against the model and of
+7 small_gicp runs, measured in the same run, and their ratio (the model's `max_source_points`
+default 4096, and 2048 / 1024 as a user may set).
+
 Parameters (documented, the same for every start): small_gicp `align` (GICP, 2 threads,
 downsampling 0.25 m street / 0.05 m room, max correspondence distance 1.0 m / 0.25 m, 50
 iterations); Open3D 0.20 `registration_generalized_icp` on the same voxel downsampling, the same
@@ -88,6 +94,37 @@ def methods(kind: str) -> Dict[str, Callable[[np.ndarray, np.ndarray, Optional[n
     return out
 
 
+def median_time(f: Callable[[], np.ndarray], n: int = 7) -> tuple[float, np.ndarray]:
+    times = []
+    t = np.eye(4)
+    for _ in range(n):
+        t0 = time.perf_counter()
+        t = f()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), t
+
+
+def speed(kind: str, model: "sdfreg.SdfModel", src: np.ndarray, tgt: np.ndarray, gt: np.ndarray,
+          gicp: Callable[[np.ndarray, np.ndarray, Optional[np.ndarray]], np.ndarray]) -> List[dict]:
+    """From the identity: registrations against the stored model against small_gicp, medians of
+    7 each, in this run."""
+    rows = []
+    model.register(src, init=np.eye(4))  # the model's first registration bakes its grid
+    t_gicp, t = median_time(lambda: gicp(src, tgt, np.eye(4)))
+    rot, trans = errors(t, gt)
+    print(f"  speed from the identity (median of 7): small_gicp {t_gicp:.3f} s ({rot:.3f}°, {trans:.4f} m)")
+    for points in (4096, 2048, 1024):
+        t_model, t = median_time(
+            lambda: np.asarray(model.register(src, init=np.eye(4), max_source_points=points).transformation))
+        rot, trans = errors(t, gt)
+        print(f"    against the model, {points} source points: {t_model:.3f} s = "
+              f"{t_model / t_gicp:.2f}× small_gicp ({rot:.3f}°, {trans:.4f} m)")
+        rows.append({"pair": kind, "method": "speed", "source_points": points, "model_s": t_model,
+                     "small_gicp_s": t_gicp, "ratio": t_model / t_gicp, "rotation_error_deg": rot,
+                     "translation_error_m": trans})
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="LiDAR pairs: sdfreg against small_gicp and Open3D GICP")
     parser.add_argument("--pairs", type=Path, default=Path("target/lidar-pairs"))
@@ -107,9 +144,22 @@ def main() -> None:
         for yaw, shift in ((10.0, 2.0), (20.0, 3.0), (30.0, 4.0)):
             starts[f"{shift:.0f} m, {yaw:.0f}° off"] = yaw_shift(yaw, shift) @ gt
         print(f"{kind}: {len(src)} / {len(tgt)} points")
-        for name, run in methods(kind).items():
+        t0 = time.perf_counter()
+        model = sdfreg.fit(tgt)
+        fit_s = time.perf_counter() - t0
+        print(f"  sdfreg.fit: {fit_s:.2f} s, {model.kind} model, voxel {model.voxel or 0.0:.3f} m, "
+              f"{model.local_parameters} local corrections")
+        rows.append({"pair": kind, "method": "sdfreg.fit", "time_s": fit_s, "kind": model.kind,
+                     "voxel_m": model.voxel, "local_parameters": model.local_parameters})
+        runs = dict(methods(kind))
+
+        def run_model(src: np.ndarray, tgt: np.ndarray, init: Optional[np.ndarray]) -> np.ndarray:
+            return np.asarray(model.register(src, init=init).transformation)
+
+        runs = {"sdfreg": runs.pop("sdfreg"), "sdfreg model": run_model, **runs}
+        for name, run in runs.items():
             cases = dict(starts)
-            if name == "sdfreg":
+            if name.startswith("sdfreg"):
                 cases = {"no guess": None, **cases}
             for start, init in cases.items():
                 t0 = time.perf_counter()
@@ -119,6 +169,9 @@ def main() -> None:
                 rows.append({"pair": kind, "method": name, "start": start, "rotation_error_deg": rot,
                              "translation_error_m": trans, "time_s": seconds})
                 print(f"  {name:<16} {start:<16} {rot:8.3f}° {trans:8.3f} m {seconds:7.3f} s", flush=True)
+        if "small_gicp GICP" in runs:
+            speed_rows = speed(kind, model, src, tgt, gt, runs["small_gicp GICP"])
+            rows.extend(speed_rows)
     if not found:
         sys.exit(f"lidar_compare.py: no pairs in {args.pairs}; make them with "
                  "`cargo bench --bench lidar_pairs -- --write {args.pairs}`")

@@ -7,19 +7,10 @@
 //!     cargo bench --bench lidar_pairs -- --write DIR   # also DIR/{street,room}/{source,target}.ply
 //!                                                      # and gt.txt, for benches/lidar_compare.py
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use sdfreg_core::lidar::{scan, Scene, Sensor};
+use nalgebra::Isometry3;
+use sdfreg_core::lidar::{room_pair, street_pair};
 use sdfreg_core::se3::pose_errors;
 use sdfreg_core::{io::write_point_cloud, register, RegisterSettings};
-
-fn pose(x: f64, y: f64, z: f64, yaw_deg: f64) -> Isometry3<f64> {
-    Isometry3::from_parts(
-        Translation3::new(x, y, z),
-        UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians()),
-    )
-}
 
 /// `--write DIR` from the command line (cargo bench passes `--bench` too).
 fn write_dir() -> Option<std::path::PathBuf> {
@@ -36,35 +27,20 @@ fn write_dir() -> Option<std::path::PathBuf> {
 
 fn main() {
     let write = write_dir();
-    let cases = [
-        (
-            "street",
-            "street (100 m, 32 beams), 1.2 m and 3° apart",
-            Scene::street(100.0, &mut ChaCha8Rng::seed_from_u64(1)),
-            Sensor::spinning_32(),
-            pose(0.0, -1.5, 1.8, 0.0),
-            pose(1.2, -1.3, 1.8, 3.0),
-        ),
-        (
-            "room",
-            "room (6 × 4 m, 64 beams), 0.58 m and 4° apart",
-            Scene::room(&mut ChaCha8Rng::seed_from_u64(2)),
-            Sensor::spinning_64(),
-            pose(0.0, 0.0, 1.2, 0.0),
-            pose(0.5, 0.3, 1.2, 4.0),
-        ),
-    ];
     let settings = RegisterSettings::default();
-    for (key, name, scene, sensor, a, b) in cases {
-        let target = scan(&scene, &sensor, &a, 1);
-        let source = scan(&scene, &sensor, &b, 2);
-        let truth = a.inverse() * b;
-        println!("{name}: {} / {} points", source.len(), target.len());
+    for pair in [street_pair(), room_pair()] {
+        let (source, target, truth) = (&pair.source, &pair.target, pair.t_target_source);
+        println!(
+            "{}: {} / {} points",
+            pair.description,
+            source.len(),
+            target.len()
+        );
         if let Some(dir) = &write {
-            let dir = dir.join(key);
+            let dir = dir.join(pair.name);
             std::fs::create_dir_all(&dir).expect("create the pair's directory");
-            write_point_cloud(dir.join("source.ply"), &source).expect("write source.ply");
-            write_point_cloud(dir.join("target.ply"), &target).expect("write target.ply");
+            write_point_cloud(dir.join("source.ply"), source).expect("write source.ply");
+            write_point_cloud(dir.join("target.ply"), target).expect("write target.ply");
             let m = truth.to_homogeneous();
             let rows: Vec<String> = (0..4)
                 .map(|i| format!("{} {} {} {}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]))
@@ -75,7 +51,7 @@ fn main() {
             ("no guess", None),
             ("identity", Some(Isometry3::identity())),
         ] {
-            let r = register(&source, &target, init.as_ref(), &settings).expect("valid clouds");
+            let r = register(source, target, init.as_ref(), &settings).expect("valid clouds");
             let (rot, trans) = pose_errors(&r.t_target_source, &truth);
             println!(
                 "  {start:>8}: {rot:.3}° {trans:.3} m, fitness {:.3}, {:.2} s",

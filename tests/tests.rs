@@ -4,3 +4,4 @@ mod common;
 mod io;
 mod model;
 mod register;
+mod scenes;

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use sdfreg_core::{RegisterSettings, RobustMode};
+use sdfreg_core::{ModelKind, RegisterSettings, RobustMode};
 
 /// Correspondence-free rigid point-cloud registration by a neural signed distance function.
 #[derive(Parser, Debug)]
@@ -107,6 +107,16 @@ pub struct Common {
     /// Target points the SDF fit uses at most; larger targets are subsampled (seeded) [default: 100000].
     #[arg(long)]
     pub max_target_points: Option<usize>,
+    /// Kind of Φ: `global` (one MLP: objects), `local` (the MLP plus a sparse voxel grid of
+    /// corrections near the target's points: rooms, streets), or `auto` (local when the
+    /// target's largest side is at least --local-ratio point spacings) [default: auto].
+    #[arg(long = "model", id = "model_kind", value_name = "KIND",
+          value_parser = clap::builder::PossibleValuesParser::new(ModelKind::NAMES))]
+    pub model_kind: Option<String>,
+    /// Voxel side of the local model, as a fraction of the target's largest side [default: the
+    /// larger of 1/128 and 3 target point spacings].
+    #[arg(long)]
+    pub local_voxel: Option<f64>,
 }
 
 impl Common {
@@ -156,6 +166,18 @@ impl Common {
         set(&mut s.max_target_points, self.max_target_points);
         s.multistart.offset = self.multistart_offset.unwrap_or(s.multistart.offset);
         s.multistart.tie = self.multistart_tie.unwrap_or(s.multistart.tie);
+        if let Some(name) = &self.model_kind {
+            s.fit.local.kind = ModelKind::from_name(name)
+                .ok_or_else(|| anyhow::anyhow!("--model: unknown kind {name:?}"))?;
+        }
+        if let Some(v) = self.local_voxel {
+            anyhow::ensure!(
+                v > 0.0 && v.is_finite(),
+                "--local-voxel: must be positive, got {v}"
+            );
+            s.fit.local.cells = ((1.0 / v).round() as usize).max(1);
+            s.fit.local.spacings = 0.0;
+        }
         Ok(s)
     }
 }

@@ -241,8 +241,15 @@ fn cmd_fit(a: FitArgs) -> Result<()> {
     let mut d: Vec<f64> = model.distance(&points).iter().map(|v| v.abs()).collect();
     d.sort_by(f64::total_cmp);
     let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    let kind = match model.voxel() {
+        Some(v) => format!(
+            "local Φ ({} corrections, voxel {v:.3e})",
+            model.local_parameters()
+        ),
+        None => "global Φ".to_string(),
+    };
     eprintln!(
-        "sdfreg: {}: fitted {} target points in {:.0} ms; |Φ| on them: median {:.3e}, RMS {:.3e}, 95 % {:.3e} (target units, extent {:.3e})",
+        "sdfreg: {}: fitted {} target points in {:.0} ms, {kind}; |Φ| on them: median {:.3e}, RMS {:.3e}, 95 % {:.3e} (target units, extent {:.3e})",
         a.output.display(),
         points.len(),
         fit_time.as_secs_f64() * 1e3,

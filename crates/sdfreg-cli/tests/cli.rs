@@ -537,8 +537,8 @@ fn fit_once_then_register_mesh_and_track_against_the_model() {
         .arg(&poses)
         .output()
         .unwrap();
-    assert_eq!(out.status.code(), Some(2));
     let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("1 of 5 frames failed"), "{err}");
     let lines: Vec<serde_json::Value> = std::fs::read_to_string(&poses)
         .unwrap()

@@ -5,6 +5,7 @@
 
 use rayon::prelude::*;
 
+use crate::local_grid::LocalGrid;
 use crate::mlp::{with_workspace, Mlp, BLOCK};
 use crate::sdf_fit::{SdfFitter, Tree};
 
@@ -59,6 +60,103 @@ impl Field for Mlp {
     }
 }
 
+/// The fitted Φ: the MLP, plus for a local model the sparse grid of corrections near the
+/// target's points ([`crate::local_grid`]): `Φ(x) = Φ_mlp(x) + h Σ w_c(x) θ_c`.
+#[derive(Clone, Debug)]
+pub struct SdfField {
+    mlp: Mlp,
+    grid: Option<LocalGrid>,
+    /// The corrections θ (in voxels), one per grid corner; empty without a grid.
+    theta: Vec<f32>,
+}
+
+impl SdfField {
+    /// Φ from a network and, for a local model, a grid (its corrections start at 0).
+    pub fn new(mlp: Mlp, grid: Option<LocalGrid>) -> Self {
+        let theta = vec![0.0; grid.as_ref().map_or(0, LocalGrid::len)];
+        Self { mlp, grid, theta }
+    }
+
+    /// The network (Φ's global part).
+    pub fn mlp(&self) -> &Mlp {
+        &self.mlp
+    }
+
+    pub(crate) fn mlp_mut(&mut self) -> &mut Mlp {
+        &mut self.mlp
+    }
+
+    /// The grid of the local part; `None` for a global model.
+    pub fn grid(&self) -> Option<&LocalGrid> {
+        self.grid.as_ref()
+    }
+
+    /// The local corrections (in voxels), one per grid corner.
+    pub fn theta(&self) -> &[f32] {
+        &self.theta
+    }
+
+    pub(crate) fn theta_mut(&mut self) -> &mut [f32] {
+        &mut self.theta
+    }
+
+    /// Adds the local part's value and gradient at `x` to `phi` and `grad` (nothing for a
+    /// global model).
+    #[inline]
+    pub(crate) fn add_local(&self, x: &[f32; 3], phi: &mut f32, grad: &mut [f32; 3]) {
+        if let Some(grid) = &self.grid {
+            let (v, g) = grid.eval(&self.theta, x);
+            *phi += v;
+            for a in 0..3 {
+                grad[a] += g[a];
+            }
+        }
+    }
+
+    /// Pushes `∂L/∂θ` for a loss with `∂L/∂Φ(x) = dphi`, `∂L/∂∇Φ(x) = dgrad` (nothing for a
+    /// global model).
+    #[inline]
+    pub(crate) fn local_adjoint(
+        &self,
+        x: &[f32; 3],
+        dphi: f32,
+        dgrad: &[f32; 3],
+        out: &mut Vec<(u32, f32)>,
+    ) {
+        if let Some(grid) = &self.grid {
+            grid.adjoint(x, dphi, dgrad, out);
+        }
+    }
+}
+
+impl Field for SdfField {
+    fn eval_block(
+        &self,
+        xs: &[[f32; 3]],
+        values: &mut Vec<f32>,
+        gradients: Option<&mut Vec<[f32; 3]>>,
+    ) {
+        match gradients {
+            Some(grads) => {
+                self.mlp.eval_block(xs, values, Some(&mut *grads));
+                if self.grid.is_some() {
+                    for ((x, v), g) in xs.iter().zip(values.iter_mut()).zip(grads.iter_mut()) {
+                        self.add_local(x, v, g);
+                    }
+                }
+            }
+            None => {
+                self.mlp.eval_block(xs, values, None);
+                if self.grid.is_some() {
+                    for (x, v) in xs.iter().zip(values.iter_mut()) {
+                        self.add_local(x, v, &mut [0.0; 3]);
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// The target as the registration stages use it: Φ, the (subsampled) target points in the unit
 /// frame and their k-d tree; refinable when Φ is fitted.
 pub(crate) trait Surface: Clone + Sync {
@@ -80,16 +178,29 @@ pub(crate) trait Surface: Clone + Sync {
     fn add_source_queries(&mut self, points: &[[f32; 3]]);
     /// Refines Φ for `steps` Adam steps at `lr`; an exact field ignores it.
     fn refine(&mut self, steps: usize, lr: f32);
+    /// Whether Φ is a local model (a scene, [`crate::ModelKind::Local`]).
+    fn is_local(&self) -> bool {
+        false
+    }
+    /// The planes at the target's points of `k` points each, for a scene's polish: new ones,
+    /// or a stored model's kept from earlier registrations.
+    fn target_planes(&self, k: usize) -> std::sync::Arc<crate::polish::TargetPlanes> {
+        std::sync::Arc::new(crate::polish::TargetPlanes::new(
+            self.target(),
+            self.tree(),
+            k,
+        ))
+    }
 }
 
 impl Surface for SdfFitter {
-    type Phi = Mlp;
-    type Coarse = Mlp;
-    fn phi(&self) -> &Mlp {
-        self.mlp()
+    type Phi = SdfField;
+    type Coarse = SdfField;
+    fn phi(&self) -> &SdfField {
+        self.field()
     }
-    fn coarse(&self) -> &Mlp {
-        self.mlp()
+    fn coarse(&self) -> &SdfField {
+        self.field()
     }
     fn target(&self) -> &[[f32; 3]] {
         SdfFitter::target(self)
@@ -102,6 +213,9 @@ impl Surface for SdfFitter {
     }
     fn refine(&mut self, steps: usize, lr: f32) {
         self.train(steps, lr);
+    }
+    fn is_local(&self) -> bool {
+        self.field().grid().is_some()
     }
 }
 

@@ -16,6 +16,7 @@
 use rayon::prelude::*;
 
 use crate::field::{Field, Surface};
+use crate::polish::{SharedPlanes, TargetPlanes};
 use crate::sdf_fit::Tree;
 
 /// Cells along each side of the grid of a stored model ([`crate::SdfModel`]). 48 cells over
@@ -110,23 +111,42 @@ impl BakedGrid {
     }
 }
 
-/// The [`Field`] of a [`BakedGrid`]: interpolated inside the grid, `exact` outside it.
-pub struct Baked<'a, F: Field + ?Sized> {
+/// Φ sampled in advance: Φ and ∇Φ at a point where the samples cover it, `None` elsewhere.
+pub trait Interpolate: Sync {
+    /// Φ and ∇Φ at `x` (unit frame), or `None` where the samples do not cover it.
+    fn interpolate(&self, x: &[f32; 3]) -> Option<(f32, [f32; 3])>;
+}
+
+impl Interpolate for &BakedGrid {
+    fn interpolate(&self, x: &[f32; 3]) -> Option<(f32, [f32; 3])> {
+        BakedGrid::interpolate(self, x)
+    }
+}
+
+impl Interpolate for crate::local_grid::SparseBaked<'_> {
+    fn interpolate(&self, x: &[f32; 3]) -> Option<(f32, [f32; 3])> {
+        crate::local_grid::SparseBaked::interpolate(self, x)
+    }
+}
+
+/// The [`Field`] of a baked `grid` (a [`BakedGrid`], or a local model's corners,
+/// [`crate::local_grid::SparseBaked`]): interpolated where it covers, `exact` elsewhere.
+pub struct Baked<'a, F: Field + ?Sized, G = &'a BakedGrid> {
     /// The grid.
-    pub grid: &'a BakedGrid,
+    pub grid: G,
     /// The field it was baked from.
     pub exact: &'a F,
 }
 
-impl<F: Field + ?Sized> Clone for Baked<'_, F> {
+impl<F: Field + ?Sized, G: Copy> Clone for Baked<'_, F, G> {
     fn clone(&self) -> Self {
         *self
     }
 }
 
-impl<F: Field + ?Sized> Copy for Baked<'_, F> {}
+impl<F: Field + ?Sized, G: Copy> Copy for Baked<'_, F, G> {}
 
-impl<F: Field + ?Sized> Field for Baked<'_, F> {
+impl<F: Field + ?Sized, G: Interpolate> Field for Baked<'_, F, G> {
     fn eval_block(
         &self,
         xs: &[[f32; 3]],
@@ -164,11 +184,48 @@ impl<F: Field + ?Sized> Field for Baked<'_, F> {
     }
 }
 
+/// Φ as the stages after the multi-start read it against a frozen target: Φ itself, or, for a
+/// local model, Φ baked at the corners of its sparse grid ([`crate::local_grid::SparseBaked`]:
+/// one lookup and eight loads instead of the MLP, the local part exactly, the MLP's part
+/// interpolated over a voxel) and Φ itself beyond them.
+pub(crate) enum FrozenPhi<'a, F: Field> {
+    /// Φ itself.
+    Exact(&'a F),
+    /// Baked at a local model's corners.
+    Sparse(Baked<'a, F, crate::local_grid::SparseBaked<'a>>),
+}
+
+impl<F: Field> Clone for FrozenPhi<'_, F> {
+    fn clone(&self) -> Self {
+        match self {
+            Self::Exact(f) => Self::Exact(f),
+            Self::Sparse(b) => Self::Sparse(*b),
+        }
+    }
+}
+
+impl<F: Field> Field for FrozenPhi<'_, F> {
+    fn eval_block(
+        &self,
+        xs: &[[f32; 3]],
+        values: &mut Vec<f32>,
+        gradients: Option<&mut Vec<[f32; 3]>>,
+    ) {
+        match self {
+            Self::Exact(f) => f.eval_block(xs, values, gradients),
+            Self::Sparse(b) => b.eval_block(xs, values, gradients),
+        }
+    }
+}
+
 /// A target whose Φ is fixed, as the registration stages see it: nothing is refined, and the
 /// multi-start's first round reads Φ baked into `grid`.
 pub(crate) struct WithGrid<'a, S: Surface> {
     surface: &'a S,
     baked: Baked<'a, S::Phi>,
+    phi: FrozenPhi<'a, S::Phi>,
+    /// The model's planes at the target's points, kept across registrations.
+    planes: Option<&'a SharedPlanes>,
 }
 
 impl<'a, S: Surface> WithGrid<'a, S> {
@@ -180,7 +237,24 @@ impl<'a, S: Surface> WithGrid<'a, S> {
                 grid,
                 exact: surface.phi(),
             },
+            phi: FrozenPhi::Exact(surface.phi()),
+            planes: None,
         }
+    }
+
+    /// The same, the stages after the multi-start reading Φ baked at a local model's corners.
+    pub(crate) fn with_sparse(mut self, sparse: crate::local_grid::SparseBaked<'a>) -> Self {
+        self.phi = FrozenPhi::Sparse(Baked {
+            grid: sparse,
+            exact: self.surface.phi(),
+        });
+        self
+    }
+
+    /// The same, keeping a scene's polish planes in `planes` across registrations.
+    pub(crate) fn with_planes(mut self, planes: &'a SharedPlanes) -> Self {
+        self.planes = Some(planes);
+        self
     }
 }
 
@@ -189,15 +263,17 @@ impl<S: Surface> Clone for WithGrid<'_, S> {
         Self {
             surface: self.surface,
             baked: self.baked,
+            phi: self.phi.clone(),
+            planes: self.planes,
         }
     }
 }
 
 impl<'a, S: Surface> Surface for WithGrid<'a, S> {
-    type Phi = S::Phi;
+    type Phi = FrozenPhi<'a, S::Phi>;
     type Coarse = Baked<'a, S::Phi>;
-    fn phi(&self) -> &S::Phi {
-        self.surface.phi()
+    fn phi(&self) -> &FrozenPhi<'a, S::Phi> {
+        &self.phi
     }
     fn coarse(&self) -> &Baked<'a, S::Phi> {
         &self.baked
@@ -210,6 +286,15 @@ impl<'a, S: Surface> Surface for WithGrid<'a, S> {
     }
     fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
     fn refine(&mut self, _: usize, _: f32) {}
+    fn is_local(&self) -> bool {
+        self.surface.is_local()
+    }
+    fn target_planes(&self, k: usize) -> std::sync::Arc<TargetPlanes> {
+        match self.planes {
+            Some(shared) => shared.get(self.target(), self.tree(), k),
+            None => self.surface.target_planes(k),
+        }
+    }
 }
 
 #[cfg(test)]

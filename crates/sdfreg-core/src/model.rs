@@ -25,7 +25,9 @@ use rayon::prelude::*;
 use crate::cloud::{subsample, validate, Normalization};
 use crate::error::{Error, Role};
 use crate::grid_field::{BakedGrid, WithGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
+use crate::local_grid::SparseBaked;
 use crate::mlp::{Mlp, MlpSettings};
+use crate::polish::SharedPlanes;
 use crate::sdf_fit::SdfFitter;
 use crate::settings::{RegisterSettings, MIN_POINTS};
 use crate::{Registration, Stage};
@@ -56,6 +58,12 @@ pub struct SdfModel {
     /// [`SdfModel::fit`], or by the first registration of a loaded model; derived from Φ
     /// alone, so it is not stored in files.
     pub(crate) grid: OnceLock<Arc<BakedGrid>>,
+    /// A scene's polish planes at the target's points, computed by the registrations as they
+    /// need them and kept for the next ones.
+    pub(crate) planes: SharedPlanes,
+    /// A local model's Φ at the corners of its grid ([`crate::local_grid::SparseBaked`]), made
+    /// with [`Self::grid`] and, like it, not stored in files.
+    pub(crate) corners: OnceLock<Vec<f32>>,
 }
 
 impl SdfModel {
@@ -78,19 +86,46 @@ impl SdfModel {
             let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
             let model = Self::fit_drawing(target, settings, &mut rng, progress)?;
             model.baked_grid();
+            model.baked_corners();
             Ok(model)
         })?
     }
 
     /// Φ baked into a grid (made on the first call).
     pub(crate) fn baked_grid(&self) -> &BakedGrid {
-        self.grid
-            .get_or_init(|| Arc::new(BakedGrid::bake(self.mlp(), BAKED_CELLS, BAKED_HALF_EXTENT)))
+        self.grid.get_or_init(|| {
+            Arc::new(BakedGrid::bake(
+                self.fitter.field(),
+                BAKED_CELLS,
+                BAKED_HALF_EXTENT,
+            ))
+        })
+    }
+
+    /// Φ at the corners of a local model's grid (made on the first call); empty for a global
+    /// model.
+    pub(crate) fn baked_corners(&self) -> &[f32] {
+        self.corners
+            .get_or_init(|| match self.fitter.field().grid() {
+                Some(grid) => {
+                    crate::field::Field::eval_points(
+                        self.fitter.field(),
+                        &grid.corner_positions(),
+                        false,
+                    )
+                    .0
+                }
+                None => Vec::new(),
+            })
     }
 
     /// The model as the registration stages see it with Φ frozen.
     pub(crate) fn frozen(&self) -> WithGrid<'_, SdfFitter> {
-        WithGrid::new(&self.fitter, self.baked_grid())
+        let frozen = WithGrid::new(&self.fitter, self.baked_grid()).with_planes(&self.planes);
+        match self.fitter.field().grid() {
+            Some(grid) => frozen.with_sparse(SparseBaked::new(grid, self.baked_corners())),
+            None => frozen,
+        }
     }
 
     /// The fit, drawing the target's subsample from `rng` (the registration's stream, so that
@@ -122,6 +157,8 @@ impl SdfModel {
             mlp: s.mlp.clone(),
             seed: s.seed,
             grid: OnceLock::new(),
+            planes: SharedPlanes::default(),
+            corners: OnceLock::new(),
         })
     }
 
@@ -217,7 +254,9 @@ impl SdfModel {
             .collect();
         let sdf: Vec<f32> = grid
             .par_chunks(crate::mlp::BLOCK * 16)
-            .flat_map_iter(|chunk| self.mlp().eval(chunk, false).0)
+            .flat_map_iter(|chunk| {
+                crate::field::Field::eval_points(self.fitter.field(), chunk, false).0
+            })
             .collect();
         let mut buffer = SurfaceNetsBuffer::default();
         surface_nets(&sdf, &shape, [0; 3], dims.map(|d| d - 1), &mut buffer);
@@ -264,6 +303,28 @@ impl SdfModel {
         self.seed
     }
 
+    /// The kind of Φ the fit made: [`crate::ModelKind::Global`] or [`crate::ModelKind::Local`]
+    /// ([`crate::LocalSettings::kind`] `Auto` decided from the target).
+    pub fn kind(&self) -> crate::ModelKind {
+        if self.fitter.field().grid().is_some() {
+            crate::ModelKind::Local
+        } else {
+            crate::ModelKind::Global
+        }
+    }
+
+    /// A local model's voxel side, in the target's units; `None` for a global model.
+    pub fn voxel(&self) -> Option<f64> {
+        let grid = self.fitter.field().grid()?;
+        Some(grid.voxel() as f64 * self.norm.scale)
+    }
+
+    /// The local grid's corrections (one per voxel corner near the target); 0 for a global
+    /// model.
+    pub fn local_parameters(&self) -> usize {
+        self.fitter.field().theta().len()
+    }
+
     /// Φ's settings: the network's, and the fit's.
     pub fn settings(&self) -> (&MlpSettings, &crate::FitSettings) {
         (&self.mlp, self.fitter.settings())
@@ -272,7 +333,7 @@ impl SdfModel {
     /// Φ and ∇Φ at `points` (target units and frame): the signed distance in those units and
     /// its gradient (unit-free), evaluated in parallel.
     pub fn evaluate(&self, points: &[Point3<f64>]) -> (Vec<f64>, Vec<Vector3<f64>>) {
-        crate::field::evaluate_user(&self.norm, self.mlp(), points)
+        crate::field::evaluate_user(&self.norm, self.fitter.field(), points)
     }
 
     /// Signed distance Φ at `points`, in the target's units (positive outside).

@@ -237,11 +237,17 @@ fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
     let n = state.params.len();
     fitter.restore(state).ok_or_else(|| {
         format!(
-            "`phi.params` holds {n} numbers; the settings' network needs {}",
-            fitter.mlp().num_params()
+            "`phi.params` holds {n} numbers; the settings' Φ (network and local grid) needs {}",
+            fitter.num_params()
         )
     })?;
-    if fitter.mlp().params().iter().any(|v| !v.is_finite()) {
+    if fitter
+        .mlp()
+        .params()
+        .iter()
+        .chain(fitter.field().theta())
+        .any(|v| !v.is_finite())
+    {
         return Err("`phi.params` holds a non-finite number".into());
     }
     Ok(SdfModel {
@@ -253,6 +259,8 @@ fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
         mlp: settings.mlp,
         seed: settings.seed,
         grid: std::sync::OnceLock::new(),
+        planes: Default::default(),
+        corners: Default::default(),
     })
 }
 

@@ -377,14 +377,28 @@ fn run<S: Surface>(
     let after_alternations = lm.pose;
     progress(Stage::Final);
     let lm_stop = final_lm(&*fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
-    let polished = polish(&unit.source, fit.target(), fit.tree(), &lm.pose, &s.polish);
+    let polish_settings = s.polish.for_target(fit.is_local());
+    let planes = fit
+        .is_local()
+        .then(|| fit.target_planes(polish_settings.neighbours));
+    let polish_from = |start: &Isometry3<f64>| {
+        polish(
+            &unit.source,
+            fit.target(),
+            fit.tree(),
+            start,
+            &polish_settings,
+            planes.as_deref(),
+        )
+    };
+    let polished = polish_from(&lm.pose);
     let searched = search(
         &unit.source,
         fit.target(),
         fit.tree(),
         &polished.pose,
         &s.shift_search,
-        &s.polish,
+        polish_from,
         s.inlier_distance,
     );
     let trace = Trace {

@@ -21,6 +21,8 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use std::num::NonZeroUsize;
 
+use crate::field::SdfField;
+use crate::local_grid::{LocalGrid, LocalSettings};
 use crate::mlp::{Mlp, MlpSettings, Workspace, BLOCK};
 
 /// k-d tree over f32 points in the unit frame.
@@ -65,6 +67,9 @@ pub struct FitSettings {
     pub lambda_eikonal: f32,
     /// At most this many moved-source queries are kept (oldest dropped first). Default 16384.
     pub max_source_queries: usize,
+    /// The local part of Φ (scenes): when it is used and how fine it is.
+    #[serde(default)]
+    pub local: LocalSettings,
 }
 
 impl FitSettings {
@@ -80,7 +85,8 @@ impl FitSettings {
         check::count_at_least("fit.sigma_sample", self.sigma_sample, 2)?;
         check::non_negative("fit.lambda_surface", self.lambda_surface as f64)?;
         check::non_negative("fit.lambda_eikonal", self.lambda_eikonal as f64)?;
-        check::count_at_least("fit.max_source_queries", self.max_source_queries, 1)
+        check::count_at_least("fit.max_source_queries", self.max_source_queries, 1)?;
+        self.local.validate()
     }
 }
 
@@ -101,6 +107,7 @@ impl Default for FitSettings {
             lambda_surface: 0.1,
             lambda_eikonal: 0.001,
             max_source_queries: 16384,
+            local: LocalSettings::default(),
         }
     }
 }
@@ -178,17 +185,26 @@ pub struct FitLoss {
 /// The neural SDF of a target cloud and the state needed to keep fitting it.
 #[derive(Clone, Debug)]
 pub struct SdfFitter {
-    mlp: Mlp,
+    field: SdfField,
     adam: Adam,
+    /// Adam's moments of the local corrections (empty without them).
+    adam_local: Adam,
     settings: FitSettings,
     target: Vec<[f32; 3]>,
     tree: Tree,
     pool: Vec<([f32; 3], [f32; 3])>,
+    /// The local part's fixed pool of queries about the target's points, each with its nearest
+    /// target point (empty for a global model).
+    local_pool: Vec<([f32; 3], [f32; 3])>,
     source_queries: Vec<([f32; 3], [f32; 3])>,
     rng: ChaCha8Rng,
-    /// Per-block workspace and gradient, kept between steps (no allocation in the loop).
-    scratch: Vec<(Workspace, Vec<f32>)>,
+    /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
+    /// allocation in the loop).
+    scratch: Vec<BlockScratch>,
 }
+
+/// One block's workspace, network gradient and local gradient `(slot, ∂L/∂θ)`.
+type BlockScratch = (Workspace, Vec<f32>, Vec<(u32, f32)>);
 
 /// Loss of one query and its derivatives: `w ‖x − Φ n − t‖² + w_e (‖g‖ − 1)²` with
 /// `g = ∇Φ(x)`, `n = g/‖g‖`. Returns `(projection term ‖·‖², total, ∂/∂Φ, ∂/∂g)`.
@@ -272,22 +288,61 @@ impl SdfFitter {
                 )
             })
             .collect();
+        // The local part, when the target asks for it: its grid follows from the points alone.
+        let local = settings
+            .local
+            .voxel(crate::polish::target_spacing(&target, &tree))
+            .map(|voxel| LocalGrid::allocate(&target, voxel, settings.local.band));
+        let n_local = local.as_ref().map_or(0, LocalGrid::len);
+        let local_pool = match &local {
+            Some(grid) => {
+                // Target points moved by a fraction of a voxel (the pool's σ is the scale of the
+                // whole target), each with its nearest target point.
+                let sigma = (settings.local.sigma_voxels * grid.voxel() as f64) as f32;
+                let moved: Vec<[f32; 3]> = (0..settings.local.pool)
+                    .map(|_| {
+                        let c = target[rng.random_range(0..target.len())];
+                        [0, 1, 2].map(|a| {
+                            let n: f32 = StandardNormal.sample(&mut rng);
+                            c[a] + sigma * n
+                        })
+                    })
+                    .collect();
+                moved
+                    .par_iter()
+                    .map(|x| {
+                        (
+                            *x,
+                            target[tree.nearest_one::<SquaredEuclidean>(x).item as usize],
+                        )
+                    })
+                    .collect()
+            }
+            None => Vec::new(),
+        };
         Self {
             adam: Adam::new(net.num_params()),
-            mlp: net,
+            adam_local: Adam::new(n_local),
+            field: SdfField::new(net, local),
             settings: settings.clone(),
             target,
             tree,
             pool,
+            local_pool,
             source_queries: Vec::new(),
             rng,
             scratch: Vec::new(),
         }
     }
 
-    /// The current network.
+    /// The current network (Φ's global part).
     pub fn mlp(&self) -> &Mlp {
-        &self.mlp
+        self.field.mlp()
+    }
+
+    /// Φ: the network and, for a local model, its grid of corrections.
+    pub fn field(&self) -> &SdfField {
+        &self.field
     }
 
     /// The target points (unit frame).
@@ -309,26 +364,42 @@ impl SdfFitter {
     /// settings and the seed: Φ's parameters, the optimiser's moments and step count, and the
     /// position in the random stream. Moved-source queries are not part of it.
     pub(crate) fn state(&self) -> FitterState {
+        let cat = |a: &[f32], b: &[f32]| [a, b].concat();
         FitterState {
-            params: self.mlp.params().to_vec(),
-            adam_m: self.adam.m.clone(),
-            adam_v: self.adam.v.clone(),
+            params: cat(self.field.mlp().params(), self.field.theta()),
+            adam_m: cat(&self.adam.m, &self.adam_local.m),
+            adam_v: cat(&self.adam.v, &self.adam_local.v),
             adam_steps: self.adam.t,
             rng_word_pos: self.rng.get_word_pos(),
         }
     }
 
+    /// Parameters of Φ: the network's, then the local corrections' (none for a global model).
+    pub fn num_params(&self) -> usize {
+        self.field.mlp().num_params() + self.field.theta().len()
+    }
+
     /// Restores a [`FitterState`] taken from a fitter built with the same target, settings and
-    /// seed; `None` when its vectors do not fit this network.
+    /// seed; `None` when its vectors do not fit this Φ ([`Self::num_params`]).
     pub(crate) fn restore(&mut self, state: FitterState) -> Option<()> {
-        let n = self.mlp.num_params();
+        let n = self.num_params();
         if state.params.len() != n || state.adam_m.len() != n || state.adam_v.len() != n {
             return None;
         }
-        self.mlp.params_mut().copy_from_slice(&state.params);
+        let k = self.field.mlp().num_params();
+        self.field
+            .mlp_mut()
+            .params_mut()
+            .copy_from_slice(&state.params[..k]);
+        self.field.theta_mut().copy_from_slice(&state.params[k..]);
         self.adam = Adam {
-            m: state.adam_m,
-            v: state.adam_v,
+            m: state.adam_m[..k].to_vec(),
+            v: state.adam_v[..k].to_vec(),
+            t: state.adam_steps,
+        };
+        self.adam_local = Adam {
+            m: state.adam_m[k..].to_vec(),
+            v: state.adam_v[k..].to_vec(),
             t: state.adam_steps,
         };
         self.rng.set_word_pos(state.rng_word_pos);
@@ -386,9 +457,18 @@ impl SdfFitter {
         let surface: Vec<[f32; 3]> = (0..nt)
             .map(|_| self.target[self.rng.random_range(0..self.target.len())])
             .collect();
+        if !self.local_pool.is_empty() {
+            let nl = st.local.batch;
+            let wl = 1.0 / nl as f32;
+            for _ in 0..nl {
+                let (x, t) = self.local_pool[self.rng.random_range(0..self.local_pool.len())];
+                queries.push(Query { x, t, w: wl });
+            }
+        }
         let we = st.lambda_eikonal / queries.len().max(1) as f32;
         let wsurf = st.lambda_surface / nt.max(1) as f32;
-        let mlp = &self.mlp;
+        let field = &self.field;
+        let mlp = field.mlp();
         let n_params = mlp.num_params();
 
         // One task per block; results come back in block order and are summed in that order,
@@ -398,13 +478,14 @@ impl SdfFitter {
         let tasks = q_blocks.len() + s_blocks.len();
         if self.scratch.len() < tasks {
             self.scratch
-                .resize_with(tasks, || (mlp.workspace(), vec![0.0; n_params]));
+                .resize_with(tasks, || (mlp.workspace(), vec![0.0; n_params], Vec::new()));
         }
         let parts: Vec<(f64, f64)> = self.scratch[..tasks]
             .par_iter_mut()
             .enumerate()
-            .map(|(i, (ws, grad))| {
+            .map(|(i, (ws, grad, local_grad))| {
                 grad.fill(0.0);
+                local_grad.clear();
                 if i < q_blocks.len() {
                     let block = q_blocks[i];
                     let xs: Vec<[f32; 3]> = block.iter().map(|q| q.x).collect();
@@ -413,8 +494,9 @@ impl SdfFitter {
                     let mut dgrad = vec![[0.0f32; 3]; block.len()];
                     let (mut total, mut proj) = (0.0f64, 0.0f64);
                     for (j, q) in block.iter().enumerate() {
-                        let (d2, l, dp, dg) =
-                            query_loss(&q.x, &q.t, q.w, we, ws.value(j), &ws.gradient(j));
+                        let (mut phi, mut g) = (ws.value(j), ws.gradient(j));
+                        field.add_local(&q.x, &mut phi, &mut g);
+                        let (d2, l, dp, dg) = query_loss(&q.x, &q.t, q.w, we, phi, &g);
                         total += l as f64;
                         // The perturbation queries fill the first `nq` places of the batch.
                         if i * BLOCK + j < nq {
@@ -422,6 +504,7 @@ impl SdfFitter {
                         }
                         dphi[j] = dp;
                         dgrad[j] = dg;
+                        field.local_adjoint(&q.x, dp, &dg, local_grad);
                     }
                     mlp.backward_block(ws, &dphi, &dgrad, grad);
                     (total, proj)
@@ -431,9 +514,12 @@ impl SdfFitter {
                     let mut total = 0.0f64;
                     let dphi: Vec<f32> = (0..block.len())
                         .map(|j| {
-                            let phi = ws.value(j);
+                            let mut phi = ws.value(j);
+                            field.add_local(&block[j], &mut phi, &mut [0.0; 3]);
                             total += (wsurf * phi.abs()) as f64;
-                            wsurf * phi.signum()
+                            let d = wsurf * phi.signum();
+                            field.local_adjoint(&block[j], d, &[0.0; 3], local_grad);
+                            d
                         })
                         .collect();
                     mlp.backward_block(ws, &dphi, &[], grad);
@@ -442,15 +528,24 @@ impl SdfFitter {
             })
             .collect();
         let mut grad = vec![0.0f32; n_params];
+        let mut theta_grad = vec![0.0f32; self.field.theta().len()];
         let mut loss = FitLoss::default();
-        for ((total, proj), (_, g)) in parts.into_iter().zip(&self.scratch) {
+        for ((total, proj), (_, g, lg)) in parts.into_iter().zip(&self.scratch) {
             loss.total += total;
             loss.projection += proj;
             for (a, b) in grad.iter_mut().zip(g) {
                 *a += b;
             }
+            for &(slot, d) in lg {
+                theta_grad[slot as usize] += d;
+            }
         }
-        self.adam.step(self.mlp.params_mut(), &grad, lr);
+        self.adam.step(self.field.mlp_mut().params_mut(), &grad, lr);
+        if !theta_grad.is_empty() {
+            let lr_local = lr * self.settings.local.lr_scale as f32;
+            self.adam_local
+                .step(self.field.theta_mut(), &theta_grad, lr_local);
+        }
         loss
     }
 }

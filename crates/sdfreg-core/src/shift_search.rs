@@ -23,7 +23,7 @@ use rayon::prelude::*;
 
 use crate::cloud::transformed_f32;
 use crate::measure::inlier_stats;
-use crate::polish::{polish, PolishOutcome, PolishSettings};
+use crate::polish::PolishOutcome;
 use crate::sdf_fit::Tree;
 
 /// Settings of the translation search after the polish: with the rotation kept, both clouds
@@ -200,14 +200,15 @@ pub(crate) struct Searched {
 
 /// The shift-search stage: from `pose` (unit frame, maps `source` onto the `target` points),
 /// translations that lay clearly more source points within `inlier_distance` of the target,
-/// each polished, kept on a fitness gain of [`ShiftSearchSettings::min_gain`].
+/// each polished by `polish_from` (the polish stage from a start pose), kept on a fitness gain of
+/// [`ShiftSearchSettings::min_gain`].
 pub(crate) fn search(
     source: &[Point3<f64>],
     target: &[[f32; 3]],
     tree: &Tree,
     pose: &Isometry3<f64>,
     s: &ShiftSearchSettings,
-    polish_settings: &PolishSettings,
+    polish_from: impl Fn(&Isometry3<f64>) -> PolishOutcome,
     inlier_distance: f64,
 ) -> Searched {
     let thr2 = inlier_distance * inlier_distance;
@@ -227,7 +228,7 @@ pub(crate) fn search(
     let mut best = fitness + s.min_gain;
     for peak in peaks {
         let start = Translation3::from(peak.offset) * pose;
-        let candidate = polish(source, target, tree, &start, polish_settings);
+        let candidate = polish_from(&start);
         let candidate_moved = transformed_f32(source, &candidate.pose);
         let (f, rms) = inlier_stats(tree, &candidate_moved, thr2);
         if f >= best {

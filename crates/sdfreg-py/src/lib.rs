@@ -74,6 +74,10 @@ use settings::{
 ///     lm: The Levenberg–Marquardt solver (:class:`LmSettings`).
 ///     polish: The final point-to-plane steps (:class:`PolishSettings`).
 ///     shift_search: The translation search (:class:`ShiftSearchSettings`).
+///     model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
+///         ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
+///         points: rooms, streets), or ``"auto"`` (local when the target's largest side is at
+///         least 400 point spacings). None keeps ``fit``'s (auto by default).
 ///
 /// A settings object replaces the preset's whole group.
 ///
@@ -85,7 +89,7 @@ use settings::{
 ///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
 ///         setting is out of range.
 #[pyfunction]
-#[pyo3(signature = (source, target, *, init = None, refine = None, preset = None, robust = None, seed = 0, threads = 0, max_source_points = None, max_target_points = None, inlier_distance = None, free_motion_ratio = None, mlp = None, fit = None, multistart = None, coarse_to_fine = None, lm = None, polish = None, shift_search = None))]
+#[pyo3(signature = (source, target, *, init = None, refine = None, preset = None, robust = None, seed = 0, threads = 0, max_source_points = None, max_target_points = None, inlier_distance = None, free_motion_ratio = None, mlp = None, fit = None, multistart = None, coarse_to_fine = None, lm = None, polish = None, shift_search = None, model = None))]
 #[allow(clippy::too_many_arguments)]
 fn register(
     py: Python<'_>,
@@ -108,6 +112,7 @@ fn register(
     lm: Option<PyRef<'_, PyLmSettings>>,
     polish: Option<PyRef<'_, PyPolishSettings>>,
     shift_search: Option<PyRef<'_, PyShiftSearchSettings>>,
+    model: Option<String>,
 ) -> PyResult<PyRegistration> {
     let source = convert::points(source, "source")?;
     let target = Target::from_python(target)?;
@@ -143,6 +148,7 @@ fn register(
         lm: lm.map(|g| g.0.clone()),
         polish: polish.map(|g| g.0.clone()),
         shift_search: shift_search.map(|g| g.0.clone()),
+        model,
     }
     .build()?;
     let result = py
@@ -265,6 +271,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyFreeMotion>()?;
     m.add_class::<PyMlpSettings>()?;
     m.add_class::<PyFitSettings>()?;
+    m.add_class::<settings::PyLocalSettings>()?;
     m.add_class::<PyMultistartSettings>()?;
     m.add_class::<PyCoarseToFineSettings>()?;
     m.add_class::<PyLmSettings>()?;

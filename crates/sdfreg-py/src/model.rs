@@ -36,6 +36,10 @@ pub struct PySdfModel(pub Arc<SdfModel>);
 ///     max_target_points: Target points used at most (larger clouds are subsampled, seeded).
 ///     mlp: The network (:class:`MlpSettings`).
 ///     fit: The fit (:class:`FitSettings`).
+///     model: Kind of Φ: ``"global"`` (one MLP: objects), ``"local"`` (the MLP plus a sparse
+///         voxel grid of corrections near the target's points: rooms, streets), or ``"auto"``
+///         (local when the target's largest side is at least 400 point spacings). None keeps
+///         ``fit``'s (auto by default).
 ///
 /// Returns:
 ///     The :class:`SdfModel`.
@@ -44,7 +48,8 @@ pub struct PySdfModel(pub Arc<SdfModel>);
 ///     ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
 ///         fewer than 10 points or no extent; a setting is out of range.
 #[pyfunction]
-#[pyo3(signature = (target, *, seed = 0, threads = 0, max_target_points = None, mlp = None, fit = None))]
+#[pyo3(signature = (target, *, seed = 0, threads = 0, max_target_points = None, mlp = None, fit = None, model = None))]
+#[allow(clippy::too_many_arguments)]
 pub fn fit(
     py: Python<'_>,
     target: &Bound<'_, PyAny>,
@@ -53,18 +58,19 @@ pub fn fit(
     max_target_points: Option<i64>,
     mlp: Option<PyRef<'_, PyMlpSettings>>,
     fit: Option<PyRef<'_, PyFitSettings>>,
+    model: Option<String>,
 ) -> PyResult<PySdfModel> {
     let target = convert::points(target, "target")?;
-    let mut s = RegisterSettings {
-        seed: seed.into_setting("seed")?,
-        threads: threads.into_setting("threads")?,
+    let s = crate::settings::SettingsArgs {
+        seed,
+        threads,
+        max_target_points,
+        mlp: mlp.map(|g| g.0.clone()),
+        fit: fit.map(|g| g.0.clone()),
+        model,
         ..Default::default()
-    };
-    if let Some(n) = max_target_points {
-        s.max_target_points = n.into_setting("max_target_points")?;
     }
-    s.mlp = mlp.as_ref().map_or(s.mlp, |g| g.0.clone());
-    s.fit = fit.as_ref().map_or(s.fit, |g| g.0.clone());
+    .build()?;
     let model = py
         .detach(|| SdfModel::fit(&target, &s))
         .map_err(error::registration)?;
@@ -229,6 +235,26 @@ impl PySdfModel {
         self.0.seed()
     }
 
+    /// ``"global"`` (Φ is one MLP) or ``"local"`` (the MLP plus a sparse voxel grid of
+    /// corrections near the target's points), as ``model=`` decided it.
+    #[getter]
+    fn kind(&self) -> &'static str {
+        self.0.kind().name()
+    }
+
+    /// A local model's voxel side, in the target's units; None for a global model.
+    #[getter]
+    fn voxel(&self) -> Option<f64> {
+        self.0.voxel()
+    }
+
+    /// The local grid's corrections (one per voxel corner near the target); 0 for a global
+    /// model.
+    #[getter]
+    fn local_parameters(&self) -> usize {
+        self.0.local_parameters()
+    }
+
     /// Writes the model to ``path`` (``.sdfm``: a safetensors file, readable without sdfreg);
     /// an existing file is replaced.
     ///
@@ -256,7 +282,7 @@ impl PySdfModel {
         let (mlp, _) = self.0.settings();
         let n = self.0.normalization();
         format!(
-            "SdfModel({} target points, extent {:.6}, centre [{:.6}, {:.6}, {:.6}], MLP {}×{}, seed {})",
+            "SdfModel({} target points, extent {:.6}, centre [{:.6}, {:.6}, {:.6}], MLP {}×{}{}, seed {})",
             self.0.target_points().len(),
             n.scale,
             n.centre.x,
@@ -264,6 +290,13 @@ impl PySdfModel {
             n.centre.z,
             mlp.width,
             mlp.depth,
+            match self.0.voxel() {
+                Some(v) => format!(
+                    ", local grid of {} corrections at voxel {v:.6}",
+                    self.0.local_parameters()
+                ),
+                None => String::new(),
+            },
             self.0.seed()
         )
     }

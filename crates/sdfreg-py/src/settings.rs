@@ -35,6 +35,26 @@ impl IntoSetting<f32> for f64 {
     }
 }
 
+impl IntoSetting<sdfreg_core::ModelKind> for &str {
+    fn into_setting(self, name: &str) -> PyResult<sdfreg_core::ModelKind> {
+        sdfreg_core::ModelKind::from_name(self).ok_or_else(|| {
+            error::argument(
+                name,
+                format!(
+                    "expected one of {:?}, got {self:?}",
+                    sdfreg_core::ModelKind::NAMES
+                ),
+            )
+        })
+    }
+}
+
+impl IntoSetting<sdfreg_core::LocalSettings> for Option<PyRef<'_, PyLocalSettings>> {
+    fn into_setting(self, _: &str) -> PyResult<sdfreg_core::LocalSettings> {
+        Ok(self.map(|g| g.0.clone()).unwrap_or_default())
+    }
+}
+
 impl<T> IntoSetting<T> for T {
     fn into_setting(self, _: &str) -> PyResult<T> {
         Ok(self)
@@ -57,6 +77,18 @@ macro_rules! expose_as_is {
     )*};
 }
 expose_as_is!(usize, u64, bool, f64);
+
+impl Expose for sdfreg_core::ModelKind {
+    fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        self.name().into_bound_py_any(py)
+    }
+}
+
+impl Expose for sdfreg_core::LocalSettings {
+    fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        Bound::new(py, PyLocalSettings(self.clone())).map(Bound::into_any)
+    }
+}
 
 impl Expose for f32 {
     fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -166,6 +198,7 @@ pub fn _settings_from_json(py: Python<'_>, name: &str, json: &str) -> PyResult<P
     let object = arms!(
         "MlpSettings" => PyMlpSettings,
         "FitSettings" => PyFitSettings,
+        "LocalSettings" => PyLocalSettings,
         "MultistartSettings" => PyMultistartSettings,
         "CoarseToFineSettings" => PyCoarseToFineSettings,
         "LmSettings" => PyLmSettings,
@@ -211,6 +244,7 @@ settings_class! {
     ///     lambda_surface: Weight of ``|Φ|`` on target points.
     ///     lambda_eikonal: Weight of the Eikonal term ``(‖∇Φ‖ − 1)²``.
     ///     max_source_queries: Moved-source queries kept at most (oldest dropped).
+    ///     local: The local part of Φ, for scenes (:class:`LocalSettings`); None: its defaults.
     PyFitSettings => FitSettings as "FitSettings", "fit" {
         prefit_steps: i64 = 500,
         prefit_lr: f64 = 0.002,
@@ -226,6 +260,35 @@ settings_class! {
         lambda_surface: f64 = 0.1,
         lambda_eikonal: f64 = 0.001,
         max_source_queries: i64 = 16384,
+        local: Option<PyRef<'_, PyLocalSettings>> = None,
+    }
+}
+
+settings_class! {
+    /// The local part of Φ (scenes): a sparse voxel grid of corrections near the target's
+    /// points, added to the MLP (lengths normalised: the target's largest side is 1).
+    ///
+    /// Args:
+    ///     kind: ``"auto"`` (local when the target's largest side is at least ``auto_ratio``
+    ///         point spacings), ``"global"`` (the MLP alone) or ``"local"``.
+    ///     auto_ratio: Extent in point spacings from which ``"auto"`` is local.
+    ///     cells: The voxel is at least the target's largest side over this…
+    ///     spacings: …and at least this many target point spacings.
+    ///     band: Voxels around each voxel holding target points that also get corrections.
+    ///     batch: Projection queries about the target's points per Adam step.
+    ///     pool: Size of the fixed pool they are drawn from.
+    ///     sigma_voxels: Their spread about the target's points, in voxels.
+    ///     lr_scale: The corrections' learning rate relative to the network's.
+    PyLocalSettings => LocalSettings as "LocalSettings", "fit.local" {
+        kind: &str = "auto",
+        auto_ratio: f64 = 400.0,
+        cells: i64 = 128,
+        spacings: f64 = 3.0,
+        band: i64 = 1,
+        batch: i64 = 2048,
+        pool: i64 = 65536,
+        sigma_voxels: f64 = 0.5,
+        lr_scale: f64 = 1.0,
     }
 }
 
@@ -299,6 +362,7 @@ settings_class! {
     /// Args:
     ///     iterations: Gauss–Newton iterations per pass at most; 0 turns the polish off.
     ///     neighbours: Target points each local plane is fitted to.
+    ///     scene_neighbours: The same when Φ is local (a scene: LiDAR rings).
     ///     max_distance: Source points farther than this from the target are left out.
     ///     max_shift: The polish is undone if it moves the source more than this (RMS).
     ///     near_spacings: A second pass uses only points within this many target spacings.
@@ -308,6 +372,7 @@ settings_class! {
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
+        scene_neighbours: i64 = 15,
         max_distance: f64 = 0.05,
         max_shift: f64 = 0.05,
         near_spacings: f64 = 3.0,
@@ -561,6 +626,7 @@ pub struct SettingsArgs<'py> {
     pub lm: Option<sdfreg_core::LmSettings>,
     pub polish: Option<sdfreg_core::PolishSettings>,
     pub shift_search: Option<sdfreg_core::ShiftSearchSettings>,
+    pub model: Option<String>,
 }
 
 impl<'py> SettingsArgs<'py> {
@@ -584,6 +650,7 @@ impl<'py> SettingsArgs<'py> {
                 "free_motion_ratio" => a.free_motion_ratio = value.extract()?,
                 "mlp" => a.mlp = group::<PyMlpSettings, _>(&value, |g| g.0.clone())?,
                 "fit" => a.fit = group::<PyFitSettings, _>(&value, |g| g.0.clone())?,
+                "model" => a.model = value.extract()?,
                 "multistart" => {
                     a.multistart = group::<PyMultistartSettings, _>(&value, |g| g.0.clone())?
                 }
@@ -638,6 +705,17 @@ impl<'py> SettingsArgs<'py> {
         s.lm = self.lm.unwrap_or(s.lm);
         s.polish = self.polish.unwrap_or(s.polish);
         s.shift_search = self.shift_search.unwrap_or(s.shift_search);
+        if let Some(name) = &self.model {
+            s.fit.local.kind = sdfreg_core::ModelKind::from_name(name).ok_or_else(|| {
+                error::argument(
+                    "model",
+                    format!(
+                        "expected one of {:?}, got {name:?}",
+                        sdfreg_core::ModelKind::NAMES
+                    ),
+                )
+            })?;
+        }
         Ok(s)
     }
 }

@@ -177,3 +177,40 @@ def test_a_registration_pickles_exactly() -> None:
         r.stages, r.fitness, r.cost, r.time_s, r.stop_reason)
     with pytest.raises(ValueError, match="not a pickled Registration"):
         sdfreg._sdfreg._registration_from_json("{}")
+
+
+def test_a_local_model_is_chosen_by_name_and_round_trips(pair) -> None:
+    """``model="local"``: the MLP plus a sparse grid of corrections near the target's points;
+    the kind, voxel and corrections survive pickling, and so do registrations against it."""
+    source, target, truth = pair
+    local = sdfreg.fit(target, fit=FIT, model="local")
+    assert local.kind == "local" and local.local_parameters > 0
+    # The voxel: at least 1/128 of the target's largest side, in the target's units.
+    extent = float((target.max(0) - target.min(0)).max())
+    assert local.voxel is not None and local.voxel >= extent / 128 * (1 - 1e-6)
+    assert "local grid of" in repr(local)
+    auto = sdfreg.fit(target, fit=FIT)
+    assert auto.kind == "global" and auto.voxel is None and auto.local_parameters == 0
+    r = sdfreg.register(source, local, **QUICK)
+    rot, trans = pose_errors(r.transformation, truth)
+    assert rot < 1.0 and trans < 0.01, (rot, trans)
+    back = pickle.loads(pickle.dumps(local))
+    assert (back.kind, back.voxel, back.local_parameters) == (local.kind, local.voxel, local.local_parameters)
+    np.testing.assert_array_equal(sdfreg.register(source, back, **QUICK).transformation, r.transformation)
+    np.testing.assert_array_equal(back.distance(target[:50]), local.distance(target[:50]))
+    # Registering against the cloud with model="local" fits the same kind.
+    direct = sdfreg.register(source, target, model="local", **QUICK)
+    rot, trans = pose_errors(direct.transformation, truth)
+    assert rot < 1.0 and trans < 0.01, (rot, trans)
+
+
+@pytest.mark.parametrize("call", ["fit", "register", "register_many"])
+def test_an_unknown_model_kind_is_a_value_error(pair, call) -> None:
+    source, target, _ = pair
+    with pytest.raises(ValueError, match=r'model: expected one of \["auto", "global", "local"\], got "scene"'):
+        if call == "fit":
+            sdfreg.fit(target, model="scene")
+        elif call == "register":
+            sdfreg.register(source, target, model="scene")
+        else:
+            sdfreg.register_many([(source, target)], model="scene")

@@ -171,16 +171,26 @@ GROUPS = {
 }
 
 
-@pytest.mark.parametrize("group", sorted(GROUPS))
+# Groups nested in a group: a keyword taking the nested class (None: its defaults).
+NESTED = {("fit", "local"): sdfreg.LocalSettings}
+
+
+@pytest.mark.parametrize("group", sorted(GROUPS) + ["fit.local"])
 def test_settings_classes_mirror_the_core_with_its_defaults(group: str) -> None:
     """Each class's keywords are the core struct's fields, with the core's defaults."""
-    cls = GROUPS[group]
-    core = _sdfreg._core_defaults()[group]
+    core = _sdfreg._core_defaults()
+    for part in group.split("."):
+        core = core[part]
+    cls = GROUPS.get(group) or NESTED[tuple(group.split("."))]  # type: ignore[arg-type]
     params = inspect.signature(cls).parameters
     assert list(params) == list(core), group
     made = cls()
     for name, value in core.items():
         assert params[name].kind is inspect.Parameter.KEYWORD_ONLY
+        nested = NESTED.get((group, name))
+        if nested is not None:
+            assert params[name].default is None and getattr(made, name) == nested(), (group, name)
+            continue
         assert params[name].default == value, (group, name)
         assert getattr(made, name) == value, (group, name)
     assert eval(repr(made), vars(sdfreg)) == made

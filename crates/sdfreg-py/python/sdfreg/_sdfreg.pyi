@@ -23,6 +23,7 @@ __all__ = [
     "FitSettings",
     "FreeMotion",
     "LmSettings",
+    "LocalSettings",
     "MlpSettings",
     "MultistartSettings",
     "PolishSettings",
@@ -92,6 +93,7 @@ class FitSettings:
         lambda_surface: float = 0.1,
         lambda_eikonal: float = 0.001,
         max_source_queries: int = 16384,
+        local: Optional[LocalSettings] = None,
     ) -> FitSettings: ...
     @property
     def prefit_steps(self) -> int: ...
@@ -121,6 +123,45 @@ class FitSettings:
     def lambda_eikonal(self) -> float: ...
     @property
     def max_source_queries(self) -> int: ...
+    @property
+    def local(self) -> LocalSettings: ...
+
+@final
+class LocalSettings:
+    """The local part of Φ (scenes): a sparse voxel grid of corrections near the target's
+    points, added to the MLP (lengths normalised: the target's largest side is 1)."""
+
+    def __new__(
+        cls,
+        *,
+        kind: str = "auto",
+        auto_ratio: float = 400.0,
+        cells: int = 128,
+        spacings: float = 3.0,
+        band: int = 1,
+        batch: int = 2048,
+        pool: int = 65536,
+        sigma_voxels: float = 0.5,
+        lr_scale: float = 1.0,
+    ) -> LocalSettings: ...
+    @property
+    def kind(self) -> str: ...
+    @property
+    def auto_ratio(self) -> float: ...
+    @property
+    def cells(self) -> int: ...
+    @property
+    def spacings(self) -> float: ...
+    @property
+    def band(self) -> int: ...
+    @property
+    def batch(self) -> int: ...
+    @property
+    def pool(self) -> int: ...
+    @property
+    def sigma_voxels(self) -> float: ...
+    @property
+    def lr_scale(self) -> float: ...
 
 @final
 class MultistartSettings:
@@ -251,6 +292,7 @@ class PolishSettings:
         *,
         iterations: int = 50,
         neighbours: int = 5,
+        scene_neighbours: int = 15,
         max_distance: float = 0.05,
         max_shift: float = 0.05,
         near_spacings: float = 3.0,
@@ -262,6 +304,8 @@ class PolishSettings:
     def iterations(self) -> int: ...
     @property
     def neighbours(self) -> int: ...
+    @property
+    def scene_neighbours(self) -> int: ...
     @property
     def max_distance(self) -> float: ...
     @property
@@ -395,6 +439,7 @@ def register(
     lm: Optional[LmSettings] = None,
     polish: Optional[PolishSettings] = None,
     shift_search: Optional[ShiftSearchSettings] = None,
+    model: Optional[str] = None,
 ) -> Registration:
     """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
     cloud onto the target's surface, without point correspondences.
@@ -438,6 +483,10 @@ def register(
         lm: The Levenberg–Marquardt solver (:class:`LmSettings`).
         polish: The final point-to-plane steps (:class:`PolishSettings`).
         shift_search: The translation search (:class:`ShiftSearchSettings`).
+        model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
+            ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
+            points: rooms, streets), or ``"auto"`` (local when the target's largest side is at
+            least 400 point spacings). None keeps ``fit``'s (auto by default).
 
     A settings object replaces the preset's whole group.
 
@@ -481,6 +530,7 @@ def register_many(
     lm: Optional[LmSettings] = None,
     polish: Optional[PolishSettings] = None,
     shift_search: Optional[ShiftSearchSettings] = None,
+    model: Optional[str] = None,
 ) -> List[Union[Registration, Exception]]:
     """Registers many pairs at once, on every core: one pair per worker thread, each
     registration single-threaded, the GIL released while they run.
@@ -534,6 +584,7 @@ class SdfModel:
         lm: Optional[LmSettings] = None,
         polish: Optional[PolishSettings] = None,
         shift_search: Optional[ShiftSearchSettings] = None,
+        model: Optional[str] = None,
     ) -> Registration:
         """Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
         (Φ frozen unless ``refine=True``)."""
@@ -572,6 +623,17 @@ class SdfModel:
     @property
     def seed(self) -> int:
         """The seed the model was fitted with."""
+    @property
+    def kind(self) -> str:
+        """``"global"`` (Φ is one MLP) or ``"local"`` (the MLP plus a sparse voxel grid of
+        corrections near the target's points), as ``model=`` decided it."""
+    @property
+    def voxel(self) -> Optional[float]:
+        """A local model's voxel side, in the target's units; None for a global model."""
+    @property
+    def local_parameters(self) -> int:
+        """The local grid's corrections (one per voxel corner near the target); 0 for a global
+        model."""
     def save(self, path: _PathLike) -> None:
         """Writes the model to ``path`` (``.sdfm``: a safetensors file, readable without sdfreg);
         an existing file is replaced.
@@ -591,6 +653,7 @@ def fit(
     max_target_points: Optional[int] = None,
     mlp: Optional[MlpSettings] = None,
     fit: Optional[FitSettings] = None,
+    model: Optional[str] = None,
 ) -> SdfModel:
     """Fits the SDF model of ``target`` once, to register many sources against it.
 
@@ -604,6 +667,10 @@ def fit(
         max_target_points: Target points used at most (larger clouds are subsampled, seeded).
         mlp: The network (:class:`MlpSettings`).
         fit: The fit (:class:`FitSettings`).
+        model: Kind of Φ: ``"global"`` (one MLP: objects), ``"local"`` (the MLP plus a sparse
+            voxel grid of corrections near the target's points: rooms, streets), or ``"auto"``
+            (local when the target's largest side is at least 400 point spacings). None keeps
+            ``fit``'s (auto by default).
 
     Returns:
         The :class:`SdfModel`.
