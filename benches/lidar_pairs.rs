@@ -10,7 +10,7 @@
 use nalgebra::Isometry3;
 use sdfreg_core::lidar::{room_pair, street_pair};
 use sdfreg_core::se3::pose_errors;
-use sdfreg_core::{io::write_point_cloud, register, RegisterSettings};
+use sdfreg_core::{register, RegisterSettings};
 
 /// `--write DIR` from the command line (cargo bench passes `--bench` too).
 fn write_dir() -> Option<std::path::PathBuf> {
@@ -37,15 +37,7 @@ fn main() {
             target.len()
         );
         if let Some(dir) = &write {
-            let dir = dir.join(pair.name);
-            std::fs::create_dir_all(&dir).expect("create the pair's directory");
-            write_point_cloud(dir.join("source.ply"), source).expect("write source.ply");
-            write_point_cloud(dir.join("target.ply"), target).expect("write target.ply");
-            let m = truth.to_homogeneous();
-            let rows: Vec<String> = (0..4)
-                .map(|i| format!("{} {} {} {}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]))
-                .collect();
-            std::fs::write(dir.join("gt.txt"), rows.join("\n") + "\n").expect("write gt.txt");
+            pair.write(&dir.join(pair.name)).expect("write the pair");
         }
         for (start, init) in [
             ("no guess", None),

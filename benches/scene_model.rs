@@ -8,12 +8,13 @@
 //!     for l in 50 100 200; do cargo bench --bench scene_model -- --length $l; done
 //!
 //! `--cells N` sets the voxel to 1/N of the target's extent (default: the settings' 128);
-//! `--voxel-m M` to M metres whatever the extent.
+//! `--voxel-m M` to M metres whatever the extent; `--write DIR` also writes the pair as
+//! `DIR/{source,target}.ply` and `DIR/gt.txt` (source into target).
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::lidar::{scan, Scene, Sensor};
+use sdfreg_core::lidar::{scan, ScanPair, Scene, Sensor};
 use sdfreg_core::se3::pose_errors;
 use sdfreg_core::{RegisterSettings, SdfModel};
 
@@ -54,6 +55,22 @@ fn main() {
     let (a, b) = (pose(0.0, -1.5, 0.0), pose(1.2, -1.3, 3.0));
     let target = scan(&scene, &sensor, &a, 1);
     let source = scan(&scene, &sensor, &b, 2);
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(dir) = args
+        .iter()
+        .position(|a| a == "--write")
+        .and_then(|i| args.get(i + 1))
+    {
+        let pair = ScanPair {
+            name: "street",
+            description: "street scanned from its middle, 1.2 m and 3° apart",
+            source: source.clone(),
+            target: target.clone(),
+            t_target_source: a.inverse() * b,
+        };
+        pair.write(std::path::Path::new(dir))
+            .expect("write the pair");
+    }
     let mut settings = RegisterSettings::default();
     if let Some(cells) = option("--cells") {
         settings.fit.local.cells = cells as usize;

@@ -315,6 +315,25 @@ pub struct ScanPair {
     pub t_target_source: Isometry3<f64>,
 }
 
+impl ScanPair {
+    /// Writes `dir/source.ply`, `dir/target.ply` and `dir/gt.txt` (the 4×4 `t_target_source`,
+    /// four lines of four numbers), creating `dir`.
+    pub fn write(&self, dir: &std::path::Path) -> Result<(), crate::error::IoError> {
+        let io = |path: std::path::PathBuf| {
+            move |source: std::io::Error| crate::error::IoError::Io { path, source }
+        };
+        std::fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
+        crate::io::write_point_cloud(dir.join("source.ply"), &self.source)?;
+        crate::io::write_point_cloud(dir.join("target.ply"), &self.target)?;
+        let m = self.t_target_source.to_homogeneous();
+        let rows: Vec<String> = (0..4)
+            .map(|i| format!("{} {} {} {}", m[(i, 0)], m[(i, 1)], m[(i, 2)], m[(i, 3)]))
+            .collect();
+        let gt = dir.join("gt.txt");
+        std::fs::write(&gt, rows.join("\n") + "\n").map_err(io(gt))
+    }
+}
+
 /// A level sensor pose at `(x, y, z)` metres, turned by `yaw_deg` about z.
 fn level_pose(x: f64, y: f64, z: f64, yaw_deg: f64) -> Isometry3<f64> {
     Isometry3::from_parts(

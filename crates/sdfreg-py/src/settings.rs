@@ -367,6 +367,7 @@ settings_class! {
     ///     max_shift: The polish is undone if it moves the source more than this (RMS).
     ///     near_spacings: A second pass uses only points within this many target spacings.
     ///     prior_weight: Weight of the prior towards the SDF's pose (relative to trace H).
+    ///     scene_prior_weight: The same when Φ is local (a scene).
     ///     tolerance: A pass has converged when its step is below this.
     ///     snap: Try snapping onto the nearest target points (kept when the source lies on them).
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
@@ -377,6 +378,7 @@ settings_class! {
         max_shift: f64 = 0.05,
         near_spacings: f64 = 3.0,
         prior_weight: f64 = 1e-4,
+        scene_prior_weight: f64 = 1e-6,
         tolerance: f64 = 1e-7,
         snap: bool = true,
     }

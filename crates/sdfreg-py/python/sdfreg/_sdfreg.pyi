@@ -297,6 +297,7 @@ class PolishSettings:
         max_shift: float = 0.05,
         near_spacings: float = 3.0,
         prior_weight: float = 1e-4,
+        scene_prior_weight: float = 1e-6,
         tolerance: float = 1e-7,
         snap: bool = True,
     ) -> PolishSettings: ...
@@ -314,6 +315,8 @@ class PolishSettings:
     def near_spacings(self) -> float: ...
     @property
     def prior_weight(self) -> float: ...
+    @property
+    def scene_prior_weight(self) -> float: ...
     @property
     def tolerance(self) -> float: ...
     @property
