@@ -107,6 +107,15 @@ impl Default for LocalSettings {
 }
 
 impl LocalSettings {
+    /// The settings of a fit written before the local kind existed: the defaults with
+    /// [`ModelKind::Global`], the MLP alone, as every such model was.
+    pub fn legacy() -> Self {
+        Self {
+            kind: ModelKind::Global,
+            ..Self::default()
+        }
+    }
+
     /// Checks every field; the error names it (`fit.local.cells`, …).
     pub fn validate(&self) -> Result<(), crate::error::Error> {
         use crate::settings::check;

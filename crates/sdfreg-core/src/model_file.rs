@@ -5,7 +5,7 @@
 //!
 //! | tensor | dtype | shape | meaning |
 //! |---|---|---|---|
-//! | `phi.params` | F32 | `[P]` | Φ's weights and biases, layer by layer: for each layer `W` (`n_out × n_in`, row-major) then `b` (`n_out`); layers 3 → width × depth → 1 |
+//! | `phi.params` | F32 | `[P]` | Φ's weights and biases, layer by layer: for each layer `W` (`n_out × n_in`, row-major) then `b` (`n_out`); layers 3 → width × depth → 1; then, for a local model, the corrections θ (in voxels), one per grid corner in the order of the corners' integer coordinates `(i, j, k)` sorted lexicographically (corner `(i, j, k)` sits at `h·(i, j, k)` in the unit frame) |
 //! | `phi.adam_m`, `phi.adam_v` | F32 | `[P]` | the optimiser's moments (to refine Φ later exactly as an unsaved model would) |
 //! | `target.points` | F32 | `[M, 3]` | the target points Φ was fitted to, in Φ's unit frame |
 //! | `frame.centre` | F64 | `[3]` | the unit frame: `x_unit = (x − centre) / scale`, target units |
@@ -19,7 +19,13 @@
 //! compact JSON of `settings` followed by every tensor's bytes in the order of the table, as 8
 //! hex digits. Φ in the unit frame is
 //! `softplus_β(W x + b)` per hidden layer (β from the settings), linear last layer; a distance in
-//! target units is `scale · Φ(x_unit)`.
+//! target units is `scale · Φ(x_unit)`. A local model ([`crate::local_grid`]) adds
+//! `h · Σ w_c(x) θ_c`, the trilinear interpolation of the corrections at the corners of the voxel
+//! holding `x`; its grid (the voxel side `h` and which corners hold a correction) follows from
+//! `settings.fit.local` and the target points, so it is rebuilt on loading, not stored. Files of
+//! models fitted before the local kind existed read as they are: their settings lack
+//! `fit.local`, which then reads as the global kind their Φ was
+//! ([`crate::LocalSettings::legacy`]).
 //!
 //! Reading refuses, naming the file: a file that is not safetensors or is cut short, a
 //! safetensors file of something else, a newer format version, missing or misshapen tensors,

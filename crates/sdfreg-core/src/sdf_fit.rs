@@ -67,8 +67,10 @@ pub struct FitSettings {
     pub lambda_eikonal: f32,
     /// At most this many moved-source queries are kept (oldest dropped first). Default 16384.
     pub max_source_queries: usize,
-    /// The local part of Φ (scenes): when it is used and how fine it is.
-    #[serde(default)]
+    /// The local part of Φ (scenes): when it is used and how fine it is. Settings written
+    /// before it existed (model files of earlier versions) lack it and read as
+    /// [`LocalSettings::legacy`]: the global MLP their Φ was.
+    #[serde(default = "LocalSettings::legacy")]
     pub local: LocalSettings,
 }
 
@@ -560,6 +562,17 @@ mod tests {
             .iter()
             .map(|d| [0.4 * d.x as f32, 0.4 * d.z as f32, 0.4 * d.y as f32])
             .collect()
+    }
+
+    #[test]
+    fn settings_written_before_the_local_kind_read_as_global() {
+        let mut json = serde_json::to_value(FitSettings::default()).unwrap();
+        json.as_object_mut().unwrap().remove("local");
+        let old: FitSettings = serde_json::from_value(json).unwrap();
+        assert_eq!(old.local.kind, crate::ModelKind::Global);
+        let now: FitSettings =
+            serde_json::from_value(serde_json::to_value(FitSettings::default()).unwrap()).unwrap();
+        assert_eq!(now, FitSettings::default());
     }
 
     #[test]
