@@ -193,9 +193,10 @@ impl SdfModel {
 /// The model in `bytes`, or what is wrong with them.
 fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
     let file = SafeTensors::deserialize(bytes).map_err(|e| container_error(&e))?;
-    let header = read_header(bytes)?;
+    let (header, settings_json) = read_header(bytes)?;
     let tensors = read_tensors(&file)?;
-    let settings_json = serde_json::to_string(&header.settings).expect("settings serialise");
+    // Over the settings as the file holds them: settings that gained a field since the file was
+    // written parse with its default, and must still check.
     if header.crc32 != checksum(&settings_json, &tensors) {
         return Err("corrupted: the checksum does not match the contents".into());
     }
@@ -272,7 +273,8 @@ fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
 
 /// The JSON header under [`METADATA_KEY`]: the format and the version checked first, so a
 /// newer file is told apart from a damaged one.
-fn read_header(bytes: &[u8]) -> Result<Header, String> {
+/// The header, and the text of its `settings` as the file holds it (what the checksum covers).
+fn read_header(bytes: &[u8]) -> Result<(Header, String), String> {
     let (_, header) = SafeTensors::read_metadata(bytes).map_err(|e| container_error(&e))?;
     let meta = header.metadata().clone().unwrap_or_default();
     let Some(text) = meta.get(METADATA_KEY) else {
@@ -297,7 +299,14 @@ fn read_header(bytes: &[u8]) -> Result<Header, String> {
             "written by a newer sdfreg (model format version {version}; this one reads up to {VERSION})"
         ));
     }
-    serde_json::from_value(value).map_err(|e| format!("metadata: {e}"))
+    #[derive(serde::Deserialize)]
+    struct RawSettings<'a> {
+        #[serde(borrow)]
+        settings: &'a serde_json::value::RawValue,
+    }
+    let raw: RawSettings<'_> = serde_json::from_str(text).map_err(|e| format!("metadata: {e}"))?;
+    let header = serde_json::from_value(value).map_err(|e| format!("metadata: {e}"))?;
+    Ok((header, raw.settings.get().to_string()))
 }
 
 /// The tensors of the table in the module docs, in its order, each checked for dtype and shape.
@@ -354,6 +363,46 @@ mod tests {
         let mut s = RegisterSettings::default();
         s.fit.prefit_steps = 100;
         SdfModel::fit(&target, &s).unwrap()
+    }
+
+    #[test]
+    fn a_file_written_before_the_local_kind_loads_as_a_global_model() {
+        // A dense target (Auto would make it local today), written as an earlier version did:
+        // the fit settings without `local`, the checksum over the settings as written.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let target = crate::shapes::blob(4000, &mut rng);
+        let mut s = RegisterSettings::default();
+        s.fit.prefit_steps = 20;
+        s.fit.local.kind = crate::ModelKind::Global;
+        let model = SdfModel::fit(&target, &s).unwrap();
+        let bytes = model.to_bytes();
+        let file = SafeTensors::deserialize(&bytes).unwrap();
+        let tensors = read_tensors(&file).unwrap();
+        let (_, meta) = SafeTensors::read_metadata(&bytes).unwrap();
+        let text = meta.metadata().clone().unwrap()[METADATA_KEY].clone();
+        let mut header: serde_json::Value = serde_json::from_str(&text).unwrap();
+        header["settings"]["fit"]
+            .as_object_mut()
+            .unwrap()
+            .remove("local");
+        let settings = serde_json::to_string(&header["settings"]).unwrap();
+        header["crc32"] = checksum(&settings, &tensors).into();
+        let write = |header: &serde_json::Value| {
+            let metadata = HashMap::from([(METADATA_KEY.to_string(), header.to_string())]);
+            let views: Vec<(&str, TensorView<'_>)> = tensors
+                .iter()
+                .map(|(name, dtype, shape, b)| {
+                    (*name, TensorView::new(*dtype, shape.clone(), b).unwrap())
+                })
+                .collect();
+            safetensors::serialize(views, Some(metadata)).unwrap()
+        };
+        let loaded = SdfModel::from_bytes(&write(&header), Path::new("old.sdfm")).unwrap();
+        assert_eq!(loaded.kind(), crate::ModelKind::Global);
+        assert_eq!(loaded.mlp().params(), model.mlp().params());
+        // A change to those settings is still caught.
+        header["settings"]["fit"]["prefit_steps"] = 21.into();
+        assert!(refused(&write(&header)).contains("checksum"));
     }
 
     fn refused(bytes: &[u8]) -> String {
