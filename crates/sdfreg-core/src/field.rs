@@ -134,24 +134,17 @@ impl Field for SdfField {
         &self,
         xs: &[[f32; 3]],
         values: &mut Vec<f32>,
-        gradients: Option<&mut Vec<[f32; 3]>>,
+        mut gradients: Option<&mut Vec<[f32; 3]>>,
     ) {
-        match gradients {
-            Some(grads) => {
-                self.mlp.eval_block(xs, values, Some(&mut *grads));
-                if self.grid.is_some() {
-                    for ((x, v), g) in xs.iter().zip(values.iter_mut()).zip(grads.iter_mut()) {
-                        self.add_local(x, v, g);
-                    }
-                }
-            }
-            None => {
-                self.mlp.eval_block(xs, values, None);
-                if self.grid.is_some() {
-                    for (x, v) in xs.iter().zip(values.iter_mut()) {
-                        self.add_local(x, v, &mut [0.0; 3]);
-                    }
-                }
+        self.mlp.eval_block(xs, values, gradients.as_deref_mut());
+        if self.grid.is_some() {
+            for (j, x) in xs.iter().enumerate() {
+                let mut unused = [0.0; 3];
+                let g = match gradients.as_deref_mut() {
+                    Some(gs) => &mut gs[j],
+                    None => &mut unused,
+                };
+                self.add_local(x, &mut values[j], g);
             }
         }
     }

@@ -190,6 +190,24 @@ fn weight(o: &[i32; 3], f: &[f32; 3]) -> (f32, [f32; 3]) {
     )
 }
 
+/// The trilinear blend at position `f` in a voxel of the `values` at its corners' `slots`
+/// (a corner without a slot counts as 0): the value and its derivative per voxel.
+#[inline]
+fn blend(slots: &[u32; 8], f: &[f32; 3], values: &[f32]) -> (f32, [f32; 3]) {
+    let (mut v, mut g) = (0.0f32, [0.0f32; 3]);
+    for (o, &s) in CORNERS.iter().zip(slots) {
+        if s != NO_SLOT {
+            let t = values[s as usize];
+            let (w, dw) = weight(o, f);
+            v += w * t;
+            for a in 0..3 {
+                g[a] += dw[a] * t;
+            }
+        }
+    }
+    (v, g)
+}
+
 /// `cells` each moved by every offset in `lo..=hi` along each axis, sorted and deduplicated.
 fn dilate(cells: &[[i32; 3]], lo: i32, hi: i32) -> Vec<[i32; 3]> {
     let mut out: Vec<[i32; 3]> = cells
@@ -269,19 +287,10 @@ impl LocalGrid {
     #[inline]
     pub fn eval(&self, theta: &[f32], x: &[f32; 3]) -> (f32, [f32; 3]) {
         let (cell, f) = locate(x, self.voxel);
-        let (mut v, mut g) = (0.0f32, [0.0f32; 3]);
-        if let Some(slots) = self.cells.get(&cell) {
-            for (o, &s) in CORNERS.iter().zip(slots) {
-                if s != NO_SLOT {
-                    let t = theta[s as usize];
-                    let (w, dw) = weight(o, &f);
-                    v += w * t;
-                    for a in 0..3 {
-                        g[a] += dw[a] * t;
-                    }
-                }
-            }
-        }
+        let (v, g) = self
+            .cells
+            .get(&cell)
+            .map_or((0.0, [0.0; 3]), |slots| blend(slots, &f, theta));
         // θ is in voxels: the value scales by h, the gradient (per voxel, of a length) not.
         (v * self.voxel, g)
     }
@@ -331,15 +340,7 @@ impl<'a> SparseBaked<'a> {
         if slots.contains(&NO_SLOT) {
             return None;
         }
-        let (mut v, mut g) = (0.0f32, [0.0f32; 3]);
-        for (o, &s) in CORNERS.iter().zip(slots) {
-            let phi = self.values[s as usize];
-            let (w, dw) = weight(o, &f);
-            v += w * phi;
-            for a in 0..3 {
-                g[a] += dw[a] * phi;
-            }
-        }
+        let (v, g) = blend(slots, &f, self.values);
         let inv = 1.0 / self.grid.voxel;
         Some((v, g.map(|d| d * inv)))
     }

@@ -20,7 +20,6 @@ use std::sync::{Arc, OnceLock};
 use nalgebra::{Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 
 use crate::cloud::{subsample, validate, Normalization};
 use crate::error::{Error, Role};
@@ -252,12 +251,7 @@ impl SdfModel {
                 std::array::from_fn(|k| (origin[k] + c[k] as f64 * cell) as f32)
             })
             .collect();
-        let sdf: Vec<f32> = grid
-            .par_chunks(crate::mlp::BLOCK * 16)
-            .flat_map_iter(|chunk| {
-                crate::field::Field::eval_points(self.fitter.field(), chunk, false).0
-            })
-            .collect();
+        let sdf = crate::field::Field::eval_points(self.fitter.field(), &grid, false).0;
         let mut buffer = SurfaceNetsBuffer::default();
         surface_nets(&sdf, &shape, [0; 3], dims.map(|d| d - 1), &mut buffer);
         let vertices = buffer

@@ -317,17 +317,16 @@ fn local_plane(
 
 /// The normal (PCA of `k` target points nearest to `target[i]`) at a target point.
 fn point_normal(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Vector3<f64>> {
+    point_plane(target, tree, i, k).map(|(_, n)| n)
+}
+
+/// The plane (PCA centroid and normal) of the `k` target points nearest target point `i`.
+fn point_plane(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Plane> {
     let q = target[i];
     let x = Point3::new(q[0] as f64, q[1] as f64, q[2] as f64);
-    local_plane(
-        target,
-        tree,
-        &x,
-        k,
-        f64::INFINITY,
-        &mut PlaneCache::default(),
-    )
-    .map(|(_, n)| n)
+    let mut cache = PlaneCache::default();
+    cache.refresh(target, tree, &x, k.max(3), f64::INFINITY)?;
+    cache.plane
 }
 
 /// Local planes at the target's own points, for scenes: the plane (PCA centroid and normal) of
@@ -364,13 +363,7 @@ impl TargetPlanes {
         tree: &Tree,
         i: usize,
     ) -> Option<(Vector3<f64>, Vector3<f64>)> {
-        *self.planes[i].get_or_init(|| {
-            let q = target[i];
-            let x = Point3::new(q[0] as f64, q[1] as f64, q[2] as f64);
-            let mut cache = PlaneCache::default();
-            cache.refresh(target, tree, &x, self.k, f64::INFINITY)?;
-            cache.plane
-        })
+        *self.planes[i].get_or_init(|| point_plane(target, tree, i, self.k))
     }
 
     /// Distance of `x` to the plane of its nearest target point, signed along that plane's
