@@ -1,4 +1,4 @@
-//! Procedural LiDAR pairs (`sdfreg_core::lidar`): two scans of a street and of a room from
+//! Procedural LiDAR pairs (`sdfreg_core::sim::lidar`): two scans of a street and of a room from
 //! nearby poses, registered with the default settings, from no guess and from the identity.
 //! Prints each pair's rotation and translation error, time and fitness: the baseline for the
 //! scene work (issue 13).
@@ -8,8 +8,8 @@
 //!                                                      # and gt.txt, for benches/lidar_compare.py
 
 use nalgebra::Isometry3;
-use sdfreg_core::lidar::{room_pair, street_pair};
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::lidar::{room_pair, street_pair};
 use sdfreg_core::{register, RegisterSettings};
 
 /// `--write DIR` from the command line (cargo bench passes `--bench` too).

@@ -5,10 +5,12 @@ use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Through
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::lm::{Kernel, Lm, LmSettings};
-use sdfreg_core::mlp::{Mlp, MlpSettings};
-use sdfreg_core::sdf_fit::{FitSettings, SdfFitter};
-use sdfreg_core::{register, shapes, RegisterSettings};
+use sdfreg_core::field::mlp::{Mlp, MlpSettings};
+use sdfreg_core::fit::fitter::SdfFitter;
+use sdfreg_core::fit::settings::FitSettings;
+use sdfreg_core::sim::shapes;
+use sdfreg_core::solve::lm::{Kernel, Lm, LmSettings};
+use sdfreg_core::{register, RegisterSettings};
 
 fn unit_points(n: usize) -> Vec<[f32; 3]> {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
@@ -28,7 +30,7 @@ fn mlp(c: &mut Criterion) {
         b.iter(|| net.eval(&pts, true))
     });
     g.bench_function("value_8192", |b| b.iter(|| net.eval(&pts, false)));
-    let block = &pts[..sdfreg_core::mlp::BLOCK];
+    let block = &pts[..sdfreg_core::field::BLOCK];
     let mut ws = net.workspace();
     let mut grad = vec![0.0f32; net.num_params()];
     let dphi = vec![0.1f32; block.len()];

@@ -14,8 +14,8 @@
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::lidar::{scan, ScanPair, Scene, Sensor};
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::lidar::{scan, ScanPair, Scene, Sensor};
 use sdfreg_core::{RegisterSettings, SdfModel};
 
 /// The positive number after `flag` on the command line (cargo bench passes `--bench` too).

@@ -3,8 +3,9 @@
 use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::se3::pose_errors;
-use sdfreg_core::{register, shapes, IoError, RegisterSettings, SdfModel};
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::shapes;
+use sdfreg_core::{register, IoError, RegisterSettings, SdfModel};
 
 use crate::common::{motion, moved, quick};
 

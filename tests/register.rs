@@ -3,10 +3,10 @@
 use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::shapes;
 use sdfreg_core::{
-    register, shapes, Error, MotionKind, PolishResult, RegisterSettings, RobustMode, RobustReport,
-    Role,
+    register, Error, MotionKind, PolishResult, RegisterSettings, RobustMode, RobustReport, Role,
 };
 
 use crate::common::{motion, moved, partial_scans_quick, quick};

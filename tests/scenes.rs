@@ -1,8 +1,8 @@
 //! Scenes: procedural LiDAR pairs of a street and a room (ray cast with parry3d, no data
 //! files) registered with the default settings, which choose the local model for them.
 
-use sdfreg_core::lidar::{room_pair, street_pair};
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::lidar::{room_pair, street_pair};
 use sdfreg_core::{register, ModelKind, RegisterSettings, SdfModel};
 
 #[test]

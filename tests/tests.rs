@@ -2,6 +2,7 @@
 
 mod common;
 mod io;
+mod layers;
 mod model;
 mod register;
 mod scenes;

@@ -4,7 +4,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sdfreg_core::batch_log::read_batch_log;
+use sdfreg_core::batch::log::read_batch_log;
 
 fuzz_target!(|data: &[u8]| {
     if let Ok(Some(log)) = read_batch_log(data, std::path::Path::new("fuzz.jsonl")) {

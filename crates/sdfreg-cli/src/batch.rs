@@ -1,6 +1,6 @@
 //! `sdfreg batch PAIRS.csv --output RESULTS.jsonl`: many pairs on every core, one pair per
 //! worker, each result appended to the output as one JSON line the moment it finishes
-//! (`sdfreg_core::batch_log` documents the file), so a crash or Ctrl-C loses no finished pair;
+//! (`sdfreg_core::batch::log` documents the file), so a crash or Ctrl-C loses no finished pair;
 //! run again, it resumes: rows already in the output are skipped.
 
 use std::collections::HashMap;
@@ -14,7 +14,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
-use sdfreg_core::batch_log::{header_line, read_batch_log, BatchLog};
+use sdfreg_core::batch::log::{header_line, read_batch_log, BatchLog};
 use sdfreg_core::{register_each, Pair, PairTarget, RegisterSettings, Registration, SdfModel};
 
 use crate::args::BatchArgs;

@@ -16,12 +16,12 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
+use sdfreg_core::geometry::mesh::sample_surface;
+use sdfreg_core::geometry::se3::{isometry_from_matrix, pose_errors};
 use sdfreg_core::io::{
     read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_mesh,
     write_point_cloud, Format,
 };
-use sdfreg_core::mesh::sample_surface;
-use sdfreg_core::se3::{isometry_from_matrix, pose_errors};
 use sdfreg_core::{
     register_with_progress, MeshModel, RegisterSettings, Registration, Role, SdfModel, Stage,
 };
@@ -396,7 +396,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
 
 fn cmd_demo(a: DemoArgs) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed);
-    let target = sdfreg_core::shapes::blob(a.points.max(10), &mut rng);
+    let target = sdfreg_core::sim::shapes::blob(a.points.max(10), &mut rng);
     let axis = nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -1.5));
     let truth_motion = Isometry3::from_parts(
         Translation3::new(0.3, -0.2, 0.25),

@@ -5,8 +5,8 @@ use std::process::Command;
 
 use nalgebra::{Isometry3, Matrix4, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::SeedableRng;
-use sdfreg_core::se3::isometry_from_matrix;
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::isometry_from_matrix;
+use sdfreg_core::geometry::se3::pose_errors;
 
 fn sdfreg() -> Command {
     Command::new(env!("CARGO_BIN_EXE_sdfreg"))
@@ -26,7 +26,8 @@ fn write_xyz(path: &Path, pts: &[Point3<f64>]) {
 }
 
 fn pair(dir: &Path) -> Isometry3<f64> {
-    let target = sdfreg_core::shapes::blob(800, &mut rand_chacha::ChaCha8Rng::seed_from_u64(9));
+    let target =
+        sdfreg_core::sim::shapes::blob(800, &mut rand_chacha::ChaCha8Rng::seed_from_u64(9));
     let m = Isometry3::from_parts(
         Translation3::new(0.2, 0.1, -0.3),
         UnitQuaternion::from_scaled_axis(Vector3::new(0.3, 0.4, -0.2)),
@@ -356,11 +357,11 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
     write_xyz(
         &shapes.join("a.ply"),
-        &sdfreg_core::shapes::blob(3000, &mut rng),
+        &sdfreg_core::sim::shapes::blob(3000, &mut rng),
     );
     write_xyz(
         &shapes.join("b").join("bracket.ply"),
-        &sdfreg_core::shapes::bracket(3000, &mut rng),
+        &sdfreg_core::sim::shapes::bracket(3000, &mut rng),
     );
     let pairs = dir.path().join("pairs");
     let json = dir.path().join("eval.json");
@@ -778,13 +779,14 @@ fn a_killed_batch_loses_no_finished_pair_and_resumes_to_the_end() {
 fn register_onto_a_meshs_exact_distance_field() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (vertices, triangles) = sdfreg_core::shapes::blob_mesh(40);
+    let (vertices, triangles) = sdfreg_core::sim::shapes::blob_mesh(40);
     sdfreg_core::io::write_mesh(d.join("mesh.ply"), &vertices, &triangles).unwrap();
     let m = Isometry3::from_parts(
         Translation3::new(0.1, -0.05, 0.08),
         UnitQuaternion::from_scaled_axis(Vector3::new(0.2, -0.3, 0.25)),
     );
-    let cloud = sdfreg_core::shapes::blob(1200, &mut rand_chacha::ChaCha8Rng::seed_from_u64(2));
+    let cloud =
+        sdfreg_core::sim::shapes::blob(1200, &mut rand_chacha::ChaCha8Rng::seed_from_u64(2));
     write_xyz(
         &d.join("scan.xyz"),
         &cloud.iter().map(|p| m * p).collect::<Vec<_>>(),

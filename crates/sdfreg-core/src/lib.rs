@@ -28,19 +28,39 @@
 //!   [`SdfModel::register`] many sources against it (Φ frozen; [`SdfModel::register_refined`]
 //!   refines a private copy), [`SdfModel::track`] a sequence of frames, query it
 //!   ([`SdfModel::distance`], [`SdfModel::gradient`], [`SdfModel::closest_points`]), mesh it
-//!   ([`SdfModel::mesh`]), save and load it as `.sdfm` ([`model_file`]).
+//!   ([`SdfModel::mesh`]), save and load it as `.sdfm` ([`model::file`]).
 //! - [`register_many`]: many [`Pair`]s (against clouds or models) on every core, one pair per
 //!   worker, results in input order and equal to registering each alone.
 //! - [`register_each`]: the same over any iterator of keyed pairs, pulled lazily, each result
-//!   handed back as it finishes; [`batch_log`]: the results file of `sdfreg batch`, and its reader.
+//!   handed back as it finishes; [`batch::log`]: the results file of `sdfreg batch`, and its reader.
 //! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
 //!   and place ([`IoError`]).
-//! - [`se3`]: exp/log maps, rigid checks and pose errors; [`cloud`]: bounding box, centroid,
-//!   the unit-frame normalisation; [`mesh`]: sampling points on triangles; [`shapes`]:
-//!   procedural test shapes; [`lidar`]: a procedural LiDAR simulator (a spinning multi-beam
-//!   sensor ray-cast into a street or a room); [`mesh_field`]: a mesh as its exact distance field.
-//! - Building blocks (benchmarks, experiments): [`mlp`] (the network with hand-written
-//!   derivatives), [`sdf_fit`] (fitting Φ), [`lm`] (the SE(3) solver).
+//!
+//! ## The layers, bottom-up
+//! Each folder of the source is a layer; a module imports only from its own layer or from lower
+//! ones, and no two modules import each other, directly or around a loop (checked by the
+//! `layers` test of the workspace).
+//! 0. `base` (crate-private): the error types ([`Error`], [`IoError`]), the range checks of
+//!    settings, the worker pool.
+//! 1. [`geometry`]: [`geometry::se3`] (exp/log maps, pose errors), [`geometry::cloud`]
+//!    (bounding box, centroid, the unit-frame normalisation), [`geometry::mesh`] (sampling
+//!    triangles), [`geometry::tree`] (the k-d tree, the point spacing), local planes.
+//! 2. [`field`]: the [`field::Field`] trait, the MLP with hand-written derivatives
+//!    ([`field::mlp`], its activation in [`field::activation`]), the local grid
+//!    ([`field::local_grid`]), Φ = MLP + grid ([`field::sdf`]), Φ baked into a grid
+//!    ([`field::baked`]), a mesh's exact distance ([`field::mesh`]).
+//! 3. [`fit`]: fitting Φ — [`fit::fitter::SdfFitter`] (losses, queries, Adam),
+//!    [`fit::settings::FitSettings`].
+//! 4. [`solve`]: the SE(3) Levenberg–Marquardt solver ([`solve::lm`]), the robust kernel
+//!    ([`solve::kernel`]), the free motions ([`solve::degeneracy`]), the quality figures.
+//! 5. `pipeline` (crate-private, its entry points re-exported here): the stages of
+//!    [`register()`] below, each with its settings, [`RegisterSettings`] and the report.
+//! 6. [`model`]: [`SdfModel`], [`MeshModel`], tracking, the `.sdfm` format ([`model::file`]).
+//! 7. [`batch`]: [`register_many`], [`register_each`], and the results file of `sdfreg batch`
+//!    ([`batch::log`]).
+//!
+//! Beside the layers: [`io`] (above `geometry`: a mesh file is sampled into a cloud) and [`sim`]
+//! (procedural [`sim::shapes`] and the LiDAR simulator [`sim::lidar`], for tests and benches).
 //!
 //! ## The pipeline, in the order [`register()`] runs it
 //! 1. normalise both clouds into the target's unit frame (largest bounding-box side 1);
@@ -62,53 +82,36 @@
 //! 9. measure: fitness, inlier RMSE, `JᵀJ` and the motions the data leave free.
 #![warn(missing_docs)]
 
-pub mod cloud;
+mod base;
+pub mod batch;
 pub mod field;
-pub mod grid_field;
+pub mod fit;
+pub mod geometry;
 pub mod io;
-pub mod lidar;
-pub mod lm;
-pub mod local_grid;
-pub mod mesh;
-pub mod mesh_field;
-pub mod mlp;
-pub mod sdf_fit;
-pub mod se3;
-pub mod shapes;
+pub mod model;
+mod pipeline;
+pub mod sim;
+pub mod solve;
 
-mod batch;
-pub mod batch_log;
-mod coarse_to_fine;
-mod degeneracy;
-mod error;
-mod measure;
-mod model;
-pub mod model_file;
-mod multistart;
-mod polish;
-mod register;
-mod report;
-mod robust;
-mod settings;
-mod shift_search;
-
-pub use batch::{register_each, register_many, Pair, PairTarget};
-pub use degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
-pub use error::{Error, IoError, Role};
-pub use lm::{LmSettings, StopReason};
-pub use local_grid::{LocalSettings, ModelKind};
-pub use mesh_field::MeshModel;
-pub use mlp::MlpSettings;
-pub use model::SdfModel;
-pub use polish::{PolishSettings, SNAP_RATIO};
-pub use register::{register, register_with_progress, Registration, Stage};
-pub use report::{
+pub use base::error::{Error, IoError, Role};
+pub use batch::pairs::{register_each, register_many, Pair, PairTarget};
+pub use field::local_grid::{LocalSettings, ModelKind};
+pub use field::mlp::MlpSettings;
+pub use fit::settings::FitSettings;
+pub use model::mesh_model::MeshModel;
+pub use model::sdf_model::SdfModel;
+pub use pipeline::coarse_to_fine::CoarseToFineSettings;
+pub use pipeline::multistart::MultistartSettings;
+pub use pipeline::polish::{PolishSettings, SNAP_RATIO};
+pub use pipeline::register::{register, register_with_progress};
+pub use pipeline::registration::Registration;
+pub use pipeline::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RobustReport, ShiftSearchReport, Stages,
+    RobustReport, ShiftSearchReport, Stage, Stages,
 };
-pub use robust::{
-    Kernel, RobustMode, RobustSettings, MAD_TO_SIGMA, OUTSIDE_SPACINGS, SCALE_SIGMAS,
-};
-pub use sdf_fit::FitSettings;
-pub use settings::{CoarseToFineSettings, MultistartSettings, RegisterSettings, MIN_POINTS};
-pub use shift_search::ShiftSearchSettings;
+pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
+pub use pipeline::settings::{RegisterSettings, MIN_POINTS};
+pub use pipeline::shift_search::ShiftSearchSettings;
+pub use solve::degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
+pub use solve::kernel::{Kernel, MAD_TO_SIGMA, SCALE_SIGMAS};
+pub use solve::lm::{LmSettings, StopReason};

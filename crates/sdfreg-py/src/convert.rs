@@ -8,7 +8,7 @@ use numpy::{
     PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
-use sdfreg_core::se3::isometry_from_matrix;
+use sdfreg_core::geometry::se3::isometry_from_matrix;
 
 use crate::error;
 

@@ -16,7 +16,7 @@
 //! own sample, moved, so every source point has an exact counterpart) or independent (source and
 //! target are disjoint samples of the shape, as two scans of one object would be).
 //!
-//! Error measures: [`sdfreg_core::se3::pose_errors`] (geodesic rotation angle, translation
+//! Error measures: [`sdfreg_core::geometry::se3::pose_errors`] (geodesic rotation angle, translation
 //! distance, in the core for every user) and
 //! [`euler_errors`] (per-axis Euler-angle differences, the DCP-style measure of the paper's
 //! tables).
@@ -26,7 +26,7 @@ use rand::seq::index::sample;
 use rand::Rng;
 use rand_distr::{Distribution, Normal, StandardNormal};
 
-use sdfreg_core::cloud::{bounding_box, centroid};
+use sdfreg_core::geometry::cloud::{bounding_box, centroid};
 
 /// How a pair's clouds are perturbed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -288,7 +288,7 @@ pub fn euler_xyz_deg(r: &Rotation3<f64>) -> [f64; 3] {
 
 /// Per-axis Euler-angle errors (degrees, each wrapped to `[−180°, 180°)`) of `estimate` against
 /// `truth`, in the `Rx·Ry·Rz` convention: the measure behind the MAE/RMSE of the paper's tables
-/// (after DCP). Unlike [`sdfreg_core::se3::pose_errors`] it depends on the convention and on the axes.
+/// (after DCP). Unlike [`sdfreg_core::geometry::se3::pose_errors`] it depends on the convention and on the axes.
 pub fn euler_errors(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> [f64; 3] {
     let e = euler_xyz_deg(&estimate.rotation.to_rotation_matrix());
     let t = euler_xyz_deg(&truth.rotation.to_rotation_matrix());
@@ -299,7 +299,7 @@ pub fn euler_errors(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> [f64; 
 mod tests {
     use super::*;
     use rand::SeedableRng;
-    use sdfreg_core::se3::rotation_angle;
+    use sdfreg_core::geometry::se3::rotation_angle;
 
     fn sphere(n: usize) -> Vec<Point3<f64>> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);

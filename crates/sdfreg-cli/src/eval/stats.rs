@@ -2,7 +2,7 @@
 //! robustness figures.
 
 use nalgebra::Isometry3;
-use sdfreg_core::se3::pose_errors;
+use sdfreg_core::geometry::se3::pose_errors;
 use sdfreg_core::Registration;
 
 use super::protocol::{euler_errors, Protocol};
@@ -88,7 +88,7 @@ pub struct Summary {
     pub translation_axis_rmse: f64,
     pub recall_5deg_005: f64,
     pub recall_1deg_001: f64,
-    /// Pairs whose result reports a free motion (see `sdfreg_core::degeneracy`).
+    /// Pairs whose result reports a free motion (see `sdfreg_core::solve::degeneracy`).
     pub flagged: usize,
     /// Rotation error mean over the pairs not flagged, degrees.
     pub rotation_mean_unflagged_deg: f64,

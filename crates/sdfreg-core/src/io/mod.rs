@@ -4,15 +4,18 @@
 //! Entry points: [`read_point_cloud`] and [`write_point_cloud`], which choose the format from
 //! the file's extension (case-insensitive).
 
+mod bytes;
 mod pcd;
 mod ply;
 mod xyz;
+
+pub use ply::MeshData;
 
 use std::path::Path;
 
 use nalgebra::Point3;
 
-pub use crate::error::IoError;
+pub use crate::base::error::IoError;
 
 /// File formats known by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,9 +99,6 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
     Ok((vertices, triangles))
 }
 
-/// Vertices and triangles (indices into the vertices).
-pub type MeshData = (Vec<Point3<f64>>, Vec<[usize; 3]>);
-
 /// Reads a PLY mesh and samples `n` points uniformly by area on its faces (seeded) instead of
 /// using its vertices — for targets given as CAD or reconstructed meshes, whose vertices are far
 /// from uniform. Refuses files without faces or whose faces have no area.
@@ -119,7 +119,7 @@ pub fn read_mesh_surface(
         return Err(parse("no faces to sample (a point cloud, not a mesh)"));
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    crate::mesh::sample_surface(&vertices, &triangles, n.max(1), &mut rng)
+    crate::geometry::mesh::sample_surface(&vertices, &triangles, n.max(1), &mut rng)
         .ok_or_else(|| parse("the faces have no area"))
 }
 
@@ -148,18 +148,6 @@ fn refuse_non_finite(points: &[Point3<f64>], path: &Path) -> Result<(), IoError>
         }),
         None => Ok(()),
     }
-}
-
-/// `header` followed by the points as little-endian f64 triples (binary PLY and PCD bodies).
-fn with_le_doubles(header: String, points: &[Point3<f64>]) -> Vec<u8> {
-    let mut out = header.into_bytes();
-    out.reserve(points.len() * 24);
-    for p in points {
-        for v in [p.x, p.y, p.z] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    out
 }
 
 /// Reads every point of a cloud file; refuses an empty one. Text files refuse a non-finite

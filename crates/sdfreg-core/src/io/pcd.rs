@@ -9,7 +9,7 @@ use pcd_rs::metas::{DataKind, FieldDef, Schema, ValueKind};
 use pcd_rs::record::PcdDeserialize;
 use pcd_rs::Reader;
 
-use crate::error::IoError;
+use crate::base::error::IoError;
 
 /// One record as read: only the coordinates are kept.
 struct Xyz([f64; 3]);
@@ -192,7 +192,7 @@ pub(super) fn read(
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
     let n = points.len();
     let header = format!("# .PCD v0.7 - written by sdfreg\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n");
-    super::with_le_doubles(header, points)
+    crate::io::bytes::with_le_doubles(header, points)
 }
 
 #[cfg(test)]

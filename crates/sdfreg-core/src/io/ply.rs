@@ -14,7 +14,7 @@ use ply_rs_bw::ply::{
     ElementDef, Encoding, Header, Property, PropertyAccess, PropertyType, ScalarType,
 };
 
-use crate::error::IoError;
+use crate::base::error::IoError;
 
 fn number(p: &Property) -> Option<f64> {
     Some(match *p {
@@ -129,8 +129,11 @@ impl Row for MeshRow {
     }
 }
 
+/// Vertices and triangles (indices into the vertices).
+pub type MeshData = (Vec<Point3<f64>>, Vec<[usize; 3]>);
+
 /// Vertices and triangles (polygons split into fans) of a PLY stream; `path` names it in errors.
-pub(super) fn read_mesh(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
+pub(super) fn read_mesh(path: &Path, reader: impl BufRead) -> Result<MeshData, IoError> {
     read_elements::<MeshRow>(path, reader)
 }
 
@@ -221,7 +224,7 @@ fn parse_error(path: &Path, line: Option<u64>, message: String) -> IoError {
 
 /// Points and triangles (fans of the polygons) of a PLY file: the header, each element's rows,
 /// nothing after the last element.
-fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<super::MeshData, IoError> {
+fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<MeshData, IoError> {
     let parse = |message: String| parse_error(path, None, message);
     let mut reader = Counting {
         inner: reader,
@@ -446,7 +449,7 @@ pub(super) fn encode_mesh(points: &[Point3<f64>], triangles: &[[usize; 3]]) -> V
         )
     };
     let header = format!("ply\nformat binary_little_endian 1.0\ncomment written by sdfreg\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\n{faces}end_header\n", points.len());
-    let mut out = super::with_le_doubles(header, points);
+    let mut out = crate::io::bytes::with_le_doubles(header, points);
     out.reserve(triangles.len() * 13);
     for t in triangles {
         out.push(3);

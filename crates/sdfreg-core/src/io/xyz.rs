@@ -6,7 +6,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use crate::error::IoError;
+use crate::base::error::IoError;
 
 /// Parses `x y z` lines; a non-finite coordinate is an error naming its line unless
 /// `keep_non_finite`.

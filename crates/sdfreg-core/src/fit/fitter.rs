@@ -1,0 +1,538 @@
+//! Fitting the neural SDF Φ to the target cloud, self-supervised (no normals needed).
+//!
+//! Losses per Adam step (paper eq. 18, 18-1, 19, 20), all in the unit frame:
+//! - projection: a query `x` whose nearest target point is `t` is pulled there along the SDF,
+//!   `‖x − Φ(x) ∇Φ(x)/‖∇Φ(x)‖ − t‖²`, averaged separately over the perturbation queries and
+//!   over the accumulated moved-source queries (coarse-to-fine, eq. 18-1);
+//! - surface: `λ_q |Φ(q)|` on target points;
+//! - Eikonal: `λ_e (‖∇Φ(x)‖ − 1)²` on all queries.
+//!
+//! Perturbation queries are target points moved by `N(0, σ²)`, with σ per point the distance
+//! to its k-th neighbour (Neural-Pull); nearest target points come from a k-d tree (kiddo).
+//!
+//! Entry point: [`SdfFitter`].
+
+use std::num::NonZeroUsize;
+
+use kiddo::SquaredEuclidean;
+use rand::seq::index::sample;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use crate::field::local_grid::LocalGrid;
+use crate::field::mlp::{Mlp, MlpSettings, Workspace};
+use crate::field::sdf::SdfField;
+use crate::field::BLOCK;
+use crate::fit::adam::Adam;
+use crate::fit::settings::FitSettings;
+use crate::geometry::tree::{build_tree, Tree};
+
+/// One query of the projection loss: the point, its nearest target point and its weight.
+#[derive(Clone, Copy, Debug)]
+struct Query {
+    x: [f32; 3],
+    t: [f32; 3],
+    w: f32,
+}
+
+/// The part of an [`SdfFitter`] that fitting changes (see [`SdfFitter::state`]).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct FitterState {
+    /// Φ's parameters.
+    pub params: Vec<f32>,
+    /// Adam's first moments.
+    pub adam_m: Vec<f32>,
+    /// Adam's second moments.
+    pub adam_v: Vec<f32>,
+    /// Adam steps taken.
+    pub adam_steps: i32,
+    /// Position in the fit's random stream.
+    pub rng_word_pos: u128,
+}
+
+/// Loss terms of the last Adam step, for monitoring.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FitLoss {
+    /// Mean projection loss over the perturbation queries (normalised units²).
+    pub projection: f64,
+    /// Total weighted loss.
+    pub total: f64,
+}
+
+/// The neural SDF of a target cloud and the state needed to keep fitting it.
+#[derive(Clone, Debug)]
+pub struct SdfFitter {
+    field: SdfField,
+    adam: Adam,
+    /// Adam's moments of the local corrections (empty without them).
+    adam_local: Adam,
+    settings: FitSettings,
+    target: Vec<[f32; 3]>,
+    tree: Tree,
+    pool: Vec<([f32; 3], [f32; 3])>,
+    /// The local part's fixed pool of queries about the target's points, each with its nearest
+    /// target point (empty for a global model).
+    local_pool: Vec<([f32; 3], [f32; 3])>,
+    source_queries: Vec<([f32; 3], [f32; 3])>,
+    rng: ChaCha8Rng,
+    /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
+    /// allocation in the loop).
+    scratch: Vec<BlockScratch>,
+}
+
+/// One block's workspace, network gradient and local gradient `(slot, ∂L/∂θ)`.
+type BlockScratch = (Workspace, Vec<f32>, Vec<(u32, f32)>);
+
+/// Loss of one query and its derivatives: `w ‖x − Φ n − t‖² + w_e (‖g‖ − 1)²` with
+/// `g = ∇Φ(x)`, `n = g/‖g‖`. Returns `(projection term ‖·‖², total, ∂/∂Φ, ∂/∂g)`.
+fn query_loss(
+    x: &[f32; 3],
+    t: &[f32; 3],
+    w: f32,
+    we: f32,
+    phi: f32,
+    g: &[f32; 3],
+) -> (f32, f32, f32, [f32; 3]) {
+    let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-8);
+    let n = [g[0] / gn, g[1] / gn, g[2] / gn];
+    let d = [
+        x[0] - phi * n[0] - t[0],
+        x[1] - phi * n[1] - t[1],
+        x[2] - phi * n[2] - t[2],
+    ];
+    let dn = d[0] * n[0] + d[1] * n[1] + d[2] * n[2];
+    let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    let e = gn - 1.0;
+    // ∂/∂Φ ‖d‖² = −2 d·n; ∂/∂g ‖d‖² = −2Φ/‖g‖ (I − n nᵀ) d; ∂/∂g (‖g‖ − 1)² = 2 e n.
+    let a = -2.0 * w * phi / gn;
+    let dg = [0, 1, 2].map(|k| a * (d[k] - dn * n[k]) + 2.0 * we * e * n[k]);
+    (d2, w * d2 + we * e * e, -2.0 * w * dn, dg)
+}
+
+impl SdfFitter {
+    /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool.
+    /// `target` must hold at least 2 points.
+    pub fn new(
+        target: Vec<[f32; 3]>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let net = Mlp::new(mlp, &mut rng);
+        let tree = build_tree(&target);
+        let m = target.len();
+        let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
+        let centres: Vec<[f32; 3]> = if s >= m {
+            target.clone()
+        } else {
+            sample(&mut rng, m, s)
+                .into_iter()
+                .map(|i| target[i])
+                .collect()
+        };
+        let centre_tree = build_tree(&centres);
+        let k = settings.sigma_neighbour.clamp(1, centres.len() - 1);
+        let sigmas: Vec<f32> = centres
+            .par_iter()
+            .map(|c| {
+                let nn =
+                    centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
+                nn.last()
+                    .map(|n| n.distance.sqrt())
+                    .unwrap_or(0.0)
+                    .max(1e-4)
+            })
+            .collect();
+        let queries: Vec<[f32; 3]> = (0..settings.query_pool)
+            .map(|i| {
+                let j = i % centres.len();
+                let c = centres[j];
+                let mut q = [0.0f32; 3];
+                for a in 0..3 {
+                    let n: f32 = StandardNormal.sample(&mut rng);
+                    q[a] = c[a] + sigmas[j] * n;
+                }
+                q
+            })
+            .collect();
+        let pool = queries
+            .par_iter()
+            .map(|q| {
+                (
+                    *q,
+                    target[tree.nearest_one::<SquaredEuclidean>(q).item as usize],
+                )
+            })
+            .collect();
+        // The local part, when the target asks for it: its grid follows from the points alone.
+        let local = settings
+            .local
+            .voxel(crate::geometry::tree::target_spacing(&target, &tree))
+            .map(|voxel| LocalGrid::allocate(&target, voxel, settings.local.band));
+        let n_local = local.as_ref().map_or(0, LocalGrid::len);
+        let local_pool = match &local {
+            Some(grid) => {
+                // Target points moved by a fraction of a voxel (the pool's σ is the scale of the
+                // whole target), each with its nearest target point.
+                let sigma = (settings.local.sigma_voxels * grid.voxel() as f64) as f32;
+                let moved: Vec<[f32; 3]> = (0..settings.local.pool)
+                    .map(|_| {
+                        let c = target[rng.random_range(0..target.len())];
+                        [0, 1, 2].map(|a| {
+                            let n: f32 = StandardNormal.sample(&mut rng);
+                            c[a] + sigma * n
+                        })
+                    })
+                    .collect();
+                moved
+                    .par_iter()
+                    .map(|x| {
+                        (
+                            *x,
+                            target[tree.nearest_one::<SquaredEuclidean>(x).item as usize],
+                        )
+                    })
+                    .collect()
+            }
+            None => Vec::new(),
+        };
+        Self {
+            adam: Adam::new(net.num_params()),
+            adam_local: Adam::new(n_local),
+            field: SdfField::new(net, local),
+            settings: settings.clone(),
+            target,
+            tree,
+            pool,
+            local_pool,
+            source_queries: Vec::new(),
+            rng,
+            scratch: Vec::new(),
+        }
+    }
+
+    /// The current network (Φ's global part).
+    pub fn mlp(&self) -> &Mlp {
+        self.field.mlp()
+    }
+
+    /// Φ: the network and, for a local model, its grid of corrections.
+    pub fn field(&self) -> &SdfField {
+        &self.field
+    }
+
+    /// The target points (unit frame).
+    pub fn target(&self) -> &[[f32; 3]] {
+        &self.target
+    }
+
+    /// The k-d tree over the target points.
+    pub fn tree(&self) -> &Tree {
+        &self.tree
+    }
+
+    /// The fit's settings.
+    pub fn settings(&self) -> &FitSettings {
+        &self.settings
+    }
+
+    /// What a fitter holds beyond what [`SdfFitter::new`] rebuilds from the target, the
+    /// settings and the seed: Φ's parameters, the optimiser's moments and step count, and the
+    /// position in the random stream. Moved-source queries are not part of it.
+    pub(crate) fn state(&self) -> FitterState {
+        let cat = |a: &[f32], b: &[f32]| [a, b].concat();
+        FitterState {
+            params: cat(self.field.mlp().params(), self.field.theta()),
+            adam_m: cat(&self.adam.m, &self.adam_local.m),
+            adam_v: cat(&self.adam.v, &self.adam_local.v),
+            adam_steps: self.adam.t,
+            rng_word_pos: self.rng.get_word_pos(),
+        }
+    }
+
+    /// Parameters of Φ: the network's, then the local corrections' (none for a global model).
+    pub fn num_params(&self) -> usize {
+        self.field.mlp().num_params() + self.field.theta().len()
+    }
+
+    /// Restores a [`FitterState`] taken from a fitter built with the same target, settings and
+    /// seed; `None` when its vectors do not fit this Φ ([`Self::num_params`]).
+    pub(crate) fn restore(&mut self, state: FitterState) -> Option<()> {
+        let n = self.num_params();
+        if state.params.len() != n || state.adam_m.len() != n || state.adam_v.len() != n {
+            return None;
+        }
+        let k = self.field.mlp().num_params();
+        self.field
+            .mlp_mut()
+            .params_mut()
+            .copy_from_slice(&state.params[..k]);
+        self.field.theta_mut().copy_from_slice(&state.params[k..]);
+        self.adam = Adam {
+            m: state.adam_m[..k].to_vec(),
+            v: state.adam_v[..k].to_vec(),
+            t: state.adam_steps,
+        };
+        self.adam_local = Adam {
+            m: state.adam_m[k..].to_vec(),
+            v: state.adam_v[k..].to_vec(),
+            t: state.adam_steps,
+        };
+        self.rng.set_word_pos(state.rng_word_pos);
+        self.source_queries.clear();
+        Some(())
+    }
+
+    /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
+    pub fn add_source_queries(&mut self, points: &[[f32; 3]]) {
+        let new: Vec<([f32; 3], [f32; 3])> = points
+            .par_iter()
+            .map(|q| {
+                (
+                    *q,
+                    self.target[self.tree.nearest_one::<SquaredEuclidean>(q).item as usize],
+                )
+            })
+            .collect();
+        self.source_queries.extend(new);
+        let max = self.settings.max_source_queries.max(1);
+        if self.source_queries.len() > max {
+            let drop = self.source_queries.len() - max;
+            self.source_queries.drain(..drop);
+        }
+    }
+
+    /// Runs `steps` Adam steps at learning rate `lr`; returns the loss of the last step.
+    pub fn train(&mut self, steps: usize, lr: f32) -> FitLoss {
+        let mut loss = FitLoss::default();
+        for _ in 0..steps {
+            loss = self.step(lr);
+        }
+        loss
+    }
+
+    fn step(&mut self, lr: f32) -> FitLoss {
+        let st = &self.settings;
+        let (nq, ns) = if self.source_queries.is_empty() {
+            (st.batch_queries, 0)
+        } else {
+            (st.refine_batch_queries, st.batch_source)
+        };
+        let nq = nq.min(self.pool.len());
+        let nt = st.batch_surface;
+        let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
+        let mut queries = Vec::with_capacity(nq + ns);
+        for _ in 0..nq {
+            let (x, t) = self.pool[self.rng.random_range(0..self.pool.len())];
+            queries.push(Query { x, t, w: wq });
+        }
+        for _ in 0..ns {
+            let (x, t) = self.source_queries[self.rng.random_range(0..self.source_queries.len())];
+            queries.push(Query { x, t, w: ws_ });
+        }
+        let surface: Vec<[f32; 3]> = (0..nt)
+            .map(|_| self.target[self.rng.random_range(0..self.target.len())])
+            .collect();
+        if !self.local_pool.is_empty() {
+            let nl = st.local.batch;
+            let wl = 1.0 / nl as f32;
+            for _ in 0..nl {
+                let (x, t) = self.local_pool[self.rng.random_range(0..self.local_pool.len())];
+                queries.push(Query { x, t, w: wl });
+            }
+        }
+        let we = st.lambda_eikonal / queries.len().max(1) as f32;
+        let wsurf = st.lambda_surface / nt.max(1) as f32;
+        let field = &self.field;
+        let mlp = field.mlp();
+        let n_params = mlp.num_params();
+
+        // One task per block; results come back in block order and are summed in that order,
+        // so the step does not depend on the number of threads.
+        let q_blocks: Vec<&[Query]> = queries.chunks(BLOCK).collect();
+        let s_blocks: Vec<&[[f32; 3]]> = surface.chunks(BLOCK).collect();
+        let tasks = q_blocks.len() + s_blocks.len();
+        if self.scratch.len() < tasks {
+            self.scratch
+                .resize_with(tasks, || (mlp.workspace(), vec![0.0; n_params], Vec::new()));
+        }
+        let parts: Vec<(f64, f64)> = self.scratch[..tasks]
+            .par_iter_mut()
+            .enumerate()
+            .map(|(i, (ws, grad, local_grad))| {
+                grad.fill(0.0);
+                local_grad.clear();
+                if i < q_blocks.len() {
+                    let block = q_blocks[i];
+                    let xs: Vec<[f32; 3]> = block.iter().map(|q| q.x).collect();
+                    mlp.forward_block(&xs, true, ws);
+                    let mut dphi = vec![0.0f32; block.len()];
+                    let mut dgrad = vec![[0.0f32; 3]; block.len()];
+                    let (mut total, mut proj) = (0.0f64, 0.0f64);
+                    for (j, q) in block.iter().enumerate() {
+                        let (mut phi, mut g) = (ws.value(j), ws.gradient(j));
+                        field.add_local(&q.x, &mut phi, &mut g);
+                        let (d2, l, dp, dg) = query_loss(&q.x, &q.t, q.w, we, phi, &g);
+                        total += l as f64;
+                        // The perturbation queries fill the first `nq` places of the batch.
+                        if i * BLOCK + j < nq {
+                            proj += d2 as f64 * wq as f64;
+                        }
+                        dphi[j] = dp;
+                        dgrad[j] = dg;
+                        field.local_adjoint(&q.x, dp, &dg, local_grad);
+                    }
+                    mlp.backward_block(ws, &dphi, &dgrad, grad);
+                    (total, proj)
+                } else {
+                    let block = s_blocks[i - q_blocks.len()];
+                    mlp.forward_block(block, false, ws);
+                    let mut total = 0.0f64;
+                    let dphi: Vec<f32> = (0..block.len())
+                        .map(|j| {
+                            let mut phi = ws.value(j);
+                            field.add_local(&block[j], &mut phi, &mut [0.0; 3]);
+                            total += (wsurf * phi.abs()) as f64;
+                            let d = wsurf * phi.signum();
+                            field.local_adjoint(&block[j], d, &[0.0; 3], local_grad);
+                            d
+                        })
+                        .collect();
+                    mlp.backward_block(ws, &dphi, &[], grad);
+                    (total, 0.0)
+                }
+            })
+            .collect();
+        let mut grad = vec![0.0f32; n_params];
+        let mut theta_grad = vec![0.0f32; self.field.theta().len()];
+        let mut loss = FitLoss::default();
+        for ((total, proj), (_, g, lg)) in parts.into_iter().zip(&self.scratch) {
+            loss.total += total;
+            loss.projection += proj;
+            for (a, b) in grad.iter_mut().zip(g) {
+                *a += b;
+            }
+            for &(slot, d) in lg {
+                theta_grad[slot as usize] += d;
+            }
+        }
+        self.adam.step(self.field.mlp_mut().params_mut(), &grad, lr);
+        if !theta_grad.is_empty() {
+            let lr_local = lr * self.settings.local.lr_scale as f32;
+            self.adam_local
+                .step(self.field.theta_mut(), &theta_grad, lr_local);
+        }
+        loss
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a sphere of radius 0.4 (unit frame).
+    fn sphere(n: usize) -> Vec<[f32; 3]> {
+        crate::sim::shapes::fibonacci_sphere(n)
+            .iter()
+            .map(|d| [0.4 * d.x as f32, 0.4 * d.z as f32, 0.4 * d.y as f32])
+            .collect()
+    }
+
+    #[test]
+    fn settings_written_before_the_local_kind_read_as_global() {
+        let mut json = serde_json::to_value(FitSettings::default()).unwrap();
+        json.as_object_mut().unwrap().remove("local");
+        let old: FitSettings = serde_json::from_value(json).unwrap();
+        assert_eq!(old.local.kind, crate::ModelKind::Global);
+        let now: FitSettings =
+            serde_json::from_value(serde_json::to_value(FitSettings::default()).unwrap()).unwrap();
+        assert_eq!(now, FitSettings::default());
+    }
+
+    #[test]
+    fn query_loss_derivatives_match_finite_differences() {
+        let (x, t) = ([0.3f32, -0.2, 0.5], [0.25f32, -0.1, 0.42]);
+        for (phi, g) in [
+            (0.07f32, [0.5f32, -0.9, 0.3]),
+            (-0.02, [0.1, 0.2, -1.3]),
+            (0.2, [1.5, 0.0, 0.1]),
+        ] {
+            let (_, _, dphi, dg) = query_loss(&x, &t, 0.7, 0.05, phi, &g);
+            let h = 1e-3f32;
+            let f = |p: f32, gg: [f32; 3]| query_loss(&x, &t, 0.7, 0.05, p, &gg).1 as f64;
+            let fd_phi = (f(phi + h, g) - f(phi - h, g)) / (2.0 * h as f64);
+            assert!(
+                (fd_phi - dphi as f64).abs() < 1e-3,
+                "∂/∂Φ: {fd_phi} vs {dphi}"
+            );
+            for k in 0..3 {
+                let (mut a, mut b) = (g, g);
+                a[k] += h;
+                b[k] -= h;
+                let fd = (f(phi, a) - f(phi, b)) / (2.0 * h as f64);
+                assert!(
+                    (fd - dg[k] as f64).abs() < 1e-3,
+                    "∂/∂g{k}: {fd} vs {}",
+                    dg[k]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn projection_loss_counts_only_perturbation_queries() {
+        // Equal perturbation and source batches give equal weights: the split must not rely on them.
+        let settings = FitSettings {
+            batch_queries: 512,
+            refine_batch_queries: 512,
+            batch_source: 512,
+            ..Default::default()
+        };
+        let target = sphere(512);
+        let plain = SdfFitter::new(target.clone(), &MlpSettings::default(), &settings, 4);
+        let mut with_source = plain.clone();
+        // Far from the surface, so counting them would change the sum a lot.
+        let far: Vec<[f32; 3]> = target
+            .iter()
+            .map(|p| [p[0] * 2.0, p[1] * 2.0, p[2] * 2.0])
+            .collect();
+        with_source.add_source_queries(&far);
+        let a = plain.clone().train(1, 1e-3);
+        let b = with_source.train(1, 1e-3);
+        assert_eq!(a.projection, b.projection);
+        assert!(
+            b.total > a.total,
+            "source queries must add to the total loss"
+        );
+    }
+
+    #[test]
+    fn fitted_sdf_of_a_sphere_is_close_to_the_true_distance() {
+        let target = sphere(1024);
+        let mut fit = SdfFitter::new(
+            target.clone(),
+            &MlpSettings::default(),
+            &FitSettings::default(),
+            1,
+        );
+        let first = fit.train(1, 2e-3);
+        let last = fit.train(300, 2e-3);
+        assert!(
+            last.projection < first.projection * 0.5,
+            "loss {first:?} → {last:?}"
+        );
+        // On the surface and at ±0.05 along the normal.
+        let mut worst: f32 = 0.0;
+        for p in target.iter().step_by(37) {
+            for off in [-0.05f32, 0.0, 0.05] {
+                let s = (0.4 + off) / 0.4;
+                let (v, _) = fit.mlp().eval(&[[p[0] * s, p[1] * s, p[2] * s]], false);
+                worst = worst.max((v[0] - off).abs());
+            }
+        }
+        assert!(worst < 0.02, "worst |Φ − d| near the sphere = {worst}");
+    }
+}

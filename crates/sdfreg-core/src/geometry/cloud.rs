@@ -1,0 +1,187 @@
+//! Point clouds and the normalisation into the unit frame the network works in.
+//!
+//! The MLP is fitted in a *unit frame*: the target's bounding-box centre at the origin and its
+//! largest side scaled to 1. All learning rates, query spreads and tolerances in the settings
+//! that say "normalised units" refer to that frame; results are mapped back to the user's.
+
+use nalgebra::{Isometry3, Point3, Translation3, Vector3};
+use rand::seq::index::sample;
+use rand_chacha::ChaCha8Rng;
+
+use crate::base::error::{Error, Role};
+
+/// Axis-aligned bounding box of `points` as `(min, max)`; `None` when empty.
+pub fn bounding_box(points: &[Point3<f64>]) -> Option<(Point3<f64>, Point3<f64>)> {
+    let first = points.first()?;
+    let (mut lo, mut hi) = (*first, *first);
+    for p in points {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    Some((lo, hi))
+}
+
+/// Mean of `points` (the origin when empty).
+pub fn centroid(points: &[Point3<f64>]) -> Point3<f64> {
+    let sum: Vector3<f64> = points.iter().map(|p| p.coords).sum();
+    Point3::from(sum / points.len().max(1) as f64)
+}
+
+/// `points` moved by `pose`, as f32 (the network's precision; unit-frame inputs).
+pub fn transformed_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
+    points
+        .iter()
+        .map(|p| {
+            let x = pose * p;
+            [x.x as f32, x.y as f32, x.z as f32]
+        })
+        .collect()
+}
+
+/// At most `max` of `points`, drawn without replacement by `rng` and kept in their order; all of
+/// them when there are no more.
+pub(crate) fn subsample(
+    points: &[Point3<f64>],
+    max: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Point3<f64>> {
+    if points.len() <= max {
+        return points.to_vec();
+    }
+    let mut idx = sample(rng, points.len(), max).into_vec();
+    idx.sort_unstable();
+    idx.into_iter().map(|i| points[i]).collect()
+}
+
+/// Checks that every coordinate is finite and that there are at least `min` points.
+pub fn validate(points: &[Point3<f64>], role: Role, min: usize) -> Result<(), Error> {
+    if let Some(index) = points
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        let p = points[index];
+        return Err(Error::NonFinite {
+            role,
+            index,
+            point: [p.x, p.y, p.z],
+        });
+    }
+    if points.len() < min {
+        return Err(Error::TooFewPoints {
+            role,
+            found: points.len(),
+            min,
+        });
+    }
+    Ok(())
+}
+
+/// The similarity `x ↦ (x − centre) / scale` from the user's frame to the unit frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Normalization {
+    /// Bounding-box centre of the target, user units.
+    pub centre: Vector3<f64>,
+    /// Largest bounding-box side of the target, user units.
+    pub scale: f64,
+}
+
+impl Normalization {
+    /// The normalisation defined by the target cloud.
+    pub fn from_target(target: &[Point3<f64>]) -> Result<Self, Error> {
+        let (lo, hi) = bounding_box(target).ok_or(Error::TooFewPoints {
+            role: Role::Target,
+            found: 0,
+            min: 1,
+        })?;
+        let scale = (hi - lo).max();
+        let centre = (lo.coords + hi.coords) * 0.5;
+        // Relative to the coordinates' magnitude: a cloud 1e-9 wide at 1e6 is a single point.
+        if scale.is_nan() || scale <= 1e-9 * (1.0 + centre.amax()) {
+            return Err(Error::NoExtent {
+                role: Role::Target,
+                extent: scale,
+            });
+        }
+        Ok(Self { centre, scale })
+    }
+
+    /// A point in the unit frame, as f32 (computed in f64 first, so large offsets are harmless).
+    pub fn to_unit(&self, p: &Point3<f64>) -> [f32; 3] {
+        let q = (p.coords - self.centre) / self.scale;
+        [q.x as f32, q.y as f32, q.z as f32]
+    }
+
+    /// A point in the unit frame, as f64.
+    pub fn to_unit_f64(&self, p: &Point3<f64>) -> Point3<f64> {
+        Point3::from((p.coords - self.centre) / self.scale)
+    }
+
+    /// A unit-frame point back in the user's frame: `x · scale + centre`.
+    pub fn to_user(&self, x: &Vector3<f64>) -> Point3<f64> {
+        Point3::from(x * self.scale + self.centre)
+    }
+
+    /// A rigid transform between user frames expressed between unit frames: `N T N⁻¹`.
+    pub fn pose_to_unit(&self, t: &Isometry3<f64>) -> Isometry3<f64> {
+        let r = t.rotation;
+        let tr = (t.translation.vector + r * self.centre - self.centre) / self.scale;
+        Isometry3::from_parts(Translation3::from(tr), r)
+    }
+
+    /// Inverse of [`Normalization::pose_to_unit`]: `N⁻¹ T N`.
+    pub fn pose_from_unit(&self, t: &Isometry3<f64>) -> Isometry3<f64> {
+        let r = t.rotation;
+        let tr = t.translation.vector * self.scale + self.centre - r * self.centre;
+        Isometry3::from_parts(Translation3::from(tr), r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    #[test]
+    fn pose_round_trip_and_meaning() {
+        let target = vec![
+            Point3::new(1e6, 2e6, 3.0),
+            Point3::new(1e6 + 4.0, 2e6 + 1.0, 5.0),
+        ];
+        let n = Normalization::from_target(&target).unwrap();
+        assert_eq!(n.scale, 4.0);
+        let t = Isometry3::from_parts(
+            Translation3::new(0.3, -2.0, 1.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.2, 0.5, -0.1)),
+        );
+        let u = n.pose_to_unit(&t);
+        let back = n.pose_from_unit(&u);
+        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-6);
+        // Mapping a point in unit frames equals mapping it in user frames.
+        let p = Point3::new(1e6 + 1.0, 2e6 - 3.0, 7.0);
+        let via_unit = n.to_unit_f64(&(t * p));
+        let direct = u * n.to_unit_f64(&p);
+        assert!((via_unit - direct).norm() < 1e-9);
+    }
+
+    #[test]
+    fn rejects_single_point_and_non_finite() {
+        let same = vec![Point3::new(1.0, 1.0, 1.0); 10];
+        assert!(matches!(
+            Normalization::from_target(&same),
+            Err(Error::NoExtent { .. })
+        ));
+        let bad = vec![Point3::new(0.0, 0.0, 0.0), Point3::new(f64::NAN, 0.0, 0.0)];
+        assert!(matches!(
+            validate(&bad, Role::Source, 1),
+            Err(Error::NonFinite { index: 1, .. })
+        ));
+        assert!(matches!(
+            validate(&same, Role::Source, 20),
+            Err(Error::TooFewPoints {
+                found: 10,
+                min: 20,
+                ..
+            })
+        ));
+    }
+}

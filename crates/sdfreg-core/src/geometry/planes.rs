@@ -1,0 +1,310 @@
+//! Local planes of a cloud: the PCA plane of a point's nearest cloud points, cached while the
+//! nearest points stay the same ([`PlaneCache`]), and planes at the cloud's own points
+//! ([`TargetPlanes`], shared across registrations by [`SharedPlanes`]).
+
+use std::num::NonZeroUsize;
+use std::sync::OnceLock;
+
+use kiddo::SquaredEuclidean;
+use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+
+use crate::geometry::tree::{target_spacing, Tree};
+
+/// What a source point's last local plane was made of, so that the next iterations, which move
+/// the point by ever smaller steps, need neither the k-d tree nor the plane fit while its
+/// nearest target points stay the same — with the same numbers as querying and fitting anew.
+///
+/// `base` is where the `k + 1` nearest target points were last found, at the (square-root)
+/// distances `radii`, strictly increasing. A point `x` within `δ` of `base` is within `δ` of
+/// its old distance to every target point, so while each gap `radiiᵢ₊₁ − radiiᵢ` exceeds `2δ`
+/// (and a rounding margin) the `k` nearest are the same points in the same order, and the
+/// plane fitted to them is the same. The plane is also kept across a new query that finds the
+/// same points in the same order.
+#[derive(Clone, Default)]
+pub(crate) struct PlaneCache {
+    /// The `k` nearest target points of the last query, in order.
+    items: Vec<u32>,
+    /// Their plane: centroid and normal; `None` when the last query found no target point
+    /// within the gate.
+    plane: Option<(Vector3<f64>, Vector3<f64>)>,
+    /// The last query point, when its `k + 1` distances were strictly increasing.
+    base: Option<Vector3<f64>>,
+    /// Distances from `base` to its `k + 1` nearest target points.
+    radii: Vec<f64>,
+}
+
+/// A local plane: a centroid and a unit normal.
+type Plane = (Vector3<f64>, Vector3<f64>);
+
+/// Margin for rounding when the k-d tree's f32 distances are compared through [`PlaneCache`]:
+/// far above f32's relative precision at unit scale.
+const ORDER_MARGIN: f64 = 1e-5;
+
+impl PlaneCache {
+    /// Whether the last plane certainly holds for `x`: `Some(true)` the same nearest points,
+    /// the nearest within `max_d`; `Some(false)` the nearest certainly beyond `max_d`; `None`
+    /// when only a query can tell.
+    fn holds(&self, x: &Vector3<f64>, max_d: f64) -> Option<bool> {
+        let base = self.base?;
+        let delta = (x - base).norm();
+        let margin = |r: f64| 2.0 * delta + ORDER_MARGIN * (1.0 + r);
+        let ordered = self.radii.windows(2).all(|w| w[1] - w[0] > margin(w[1]));
+        if !ordered {
+            return None;
+        }
+        let nearest = self.radii[0];
+        if nearest + delta + ORDER_MARGIN * (1.0 + nearest) < max_d {
+            // The plane is that of `base`'s points unless `base` was beyond the gate.
+            self.plane.map(|_| true)
+        } else if nearest - delta - ORDER_MARGIN * (1.0 + nearest) > max_d {
+            Some(false)
+        } else {
+            None
+        }
+    }
+}
+
+impl PlaneCache {
+    /// Queries the `k` (and, for the next iterations' gap, `k + 1`) nearest target points of
+    /// `x` and refits the plane unless they are the same points in the same order; `None`
+    /// (and no plane) when the nearest is farther than `max_d2` (squared).
+    fn refresh(
+        &mut self,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        x: &Point3<f64>,
+        k: usize,
+        max_d2: f64,
+    ) -> Option<()> {
+        let xf = [x.x as f32, x.y as f32, x.z as f32];
+        // The first k of k + 1 are the k nearest in the same order when the distances
+        // strictly increase.
+        let more = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k + 1).unwrap());
+        let increasing =
+            more.len() == k + 1 && more.windows(2).all(|w| w[0].distance < w[1].distance);
+        let nn = if increasing {
+            more
+        } else {
+            tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(k).unwrap())
+        };
+        self.base = increasing.then(|| Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
+        self.radii.clear();
+        if increasing {
+            self.radii
+                .extend(nn.iter().map(|n| (n.distance as f64).sqrt()));
+        }
+        let nn = &nn[..k.min(nn.len())];
+        if nn.first()?.distance as f64 > max_d2 {
+            // No plane for `base`: the next iterations may skip the query only to say so again.
+            self.plane = None;
+            self.items.clear();
+            return None;
+        }
+        let same = self.plane.is_some()
+            && self.items.len() == nn.len()
+            && self.items.iter().zip(nn).all(|(&a, b)| a == b.item);
+        if !same {
+            let pts: Vec<Vector3<f64>> = nn
+                .iter()
+                .map(|n| {
+                    let p = target[n.item as usize];
+                    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+                })
+                .collect();
+            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
+            let cov: Matrix3<f64> = pts
+                .iter()
+                .map(|p| (p - mean) * (p - mean).transpose())
+                .sum();
+            let eig = SymmetricEigen::new(cov);
+            let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+            self.items.clear();
+            self.items.extend(nn.iter().map(|n| n.item));
+            self.plane = Some((mean, n));
+        }
+        Some(())
+    }
+}
+
+/// Distance of `x` to the plane fitted (PCA) through its `k` nearest target points, signed along
+/// that plane's normal, and the normal; `None` when `x` is farther than `max_d2` (squared) from
+/// every target point. `cache` holds what this point's last plane was made of
+/// ([`PlaneCache`]).
+pub(crate) fn local_plane(
+    target: &[[f32; 3]],
+    tree: &Tree,
+    x: &Point3<f64>,
+    k: usize,
+    max_d2: f64,
+    cache: &mut PlaneCache,
+) -> Option<(f64, Vector3<f64>)> {
+    match cache.holds(&x.coords, max_d2.sqrt()) {
+        Some(true) => {}
+        Some(false) => return None,
+        None => cache.refresh(target, tree, x, k.max(3), max_d2)?,
+    }
+    let (mean, n) = cache.plane?;
+    Some((n.dot(&(x.coords - mean)), n))
+}
+
+/// The normal (PCA of `k` target points nearest to `target[i]`) at a target point.
+pub(crate) fn point_normal(
+    target: &[[f32; 3]],
+    tree: &Tree,
+    i: usize,
+    k: usize,
+) -> Option<Vector3<f64>> {
+    point_plane(target, tree, i, k).map(|(_, n)| n)
+}
+
+/// The plane (PCA centroid and normal) of the `k` target points nearest target point `i`.
+fn point_plane(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Plane> {
+    let q = target[i];
+    let x = Point3::new(q[0] as f64, q[1] as f64, q[2] as f64);
+    let mut cache = PlaneCache::default();
+    cache.refresh(target, tree, &x, k.max(3), f64::INFINITY)?;
+    cache.plane
+}
+
+/// Local planes at the target's own points, for scenes: the plane (PCA centroid and normal) of
+/// each target point's `k` nearest target points, computed once when first asked for and then
+/// shared by every iteration, pass and shift-search candidate. A moved source point's residual
+/// is its distance to the plane of its nearest target point: one nearest-point query an
+/// iteration instead of a `k`-nearest query and a fit at the source point. Used when Φ is local
+/// ([`crate::ModelKind::Local`]), whose planes take [`PolishSettings::scene_neighbours`] points:
+/// on the procedural street pair the polish took 70 % of a registration against a stored model
+/// with planes at the source points.
+#[derive(Debug)]
+pub(crate) struct TargetPlanes {
+    k: usize,
+    /// The target's median point spacing ([`target_spacing`]), computed once.
+    pub(crate) spacing: f64,
+    planes: Vec<OnceLock<Option<Plane>>>,
+}
+
+impl TargetPlanes {
+    /// No plane computed yet, for the `target` points (and their `tree`) and planes of `k`
+    /// points.
+    pub(crate) fn new(target: &[[f32; 3]], tree: &Tree, k: usize) -> Self {
+        Self {
+            k: k.max(3),
+            spacing: target_spacing(target, tree),
+            planes: (0..target.len()).map(|_| OnceLock::new()).collect(),
+        }
+    }
+
+    /// The plane at target point `i`.
+    fn plane(
+        &self,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        i: usize,
+    ) -> Option<(Vector3<f64>, Vector3<f64>)> {
+        *self.planes[i].get_or_init(|| point_plane(target, tree, i, self.k))
+    }
+
+    /// Distance of `x` to the plane of its nearest target point, signed along that plane's
+    /// normal, and the normal; `None` when that point is farther than `max_d2` (squared).
+    /// `cache` keeps the nearest point while it certainly stays the nearest (the gap between
+    /// the two nearest distances, as [`PlaneCache`] does for `k` points).
+    pub(crate) fn residual(
+        &self,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        x: &Point3<f64>,
+        max_d2: f64,
+        cache: &mut PlaneCache,
+    ) -> Option<(f64, Vector3<f64>)> {
+        let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+        if nn.distance as f64 > max_d2 {
+            return None;
+        }
+        if cache.items.first() != Some(&nn.item) {
+            cache.items.clear();
+            cache.items.push(nn.item);
+            cache.plane = self.plane(target, tree, nn.item as usize);
+        }
+        let (mean, n) = cache.plane?;
+        Some((n.dot(&(x.coords - mean)), n))
+    }
+}
+
+/// A target's [`TargetPlanes`] kept across registrations (a stored model's: fit once, register
+/// many): the planes computed by one registration serve the next, unless it asks for another
+/// number of points per plane.
+#[derive(Debug, Default)]
+pub(crate) struct SharedPlanes(std::sync::Mutex<Option<std::sync::Arc<TargetPlanes>>>);
+
+impl Clone for SharedPlanes {
+    fn clone(&self) -> Self {
+        Self(std::sync::Mutex::new(
+            self.0.lock().ok().and_then(|g| g.clone()),
+        ))
+    }
+}
+
+impl SharedPlanes {
+    /// The planes of the `target` points of `k` points each: the kept ones when they fit,
+    /// else new ones (kept from now on).
+    pub(crate) fn get(
+        &self,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        k: usize,
+    ) -> std::sync::Arc<TargetPlanes> {
+        let n = target.len();
+        let fresh = || std::sync::Arc::new(TargetPlanes::new(target, tree, k));
+        let Ok(mut kept) = self.0.lock() else {
+            return fresh();
+        };
+        match &*kept {
+            Some(p) if p.k == k.max(3) && p.planes.len() == n => p.clone(),
+            _ => kept.insert(fresh()).clone(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+
+    #[test]
+    fn a_kept_plane_is_bit_identical_to_a_fresh_query_and_fit() {
+        // Source points walked towards the target by ever smaller steps, as the polish moves
+        // them, some across the gate; the cache must skip queries and change no number.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(3000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32 * 0.8, p.y as f32 * 0.8, p.z as f32 * 0.8])
+            .collect();
+        let tree = crate::geometry::tree::build_tree(&target);
+        let k = 5; // the polish's default neighbours
+        let max_d2 = 0.03f64 * 0.03;
+        let mut skipped = 0;
+        let mut total = 0;
+        for (i, p) in target.iter().step_by(37).enumerate() {
+            let dir = Vector3::new(1.0, (i as f64 * 0.7).sin(), (i as f64 * 1.3).cos()).normalize();
+            let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let mut cache = PlaneCache::default();
+            for step in 0..40 {
+                let off = 0.05 * 0.8f64.powi(step) + 1e-4 * (step as f64 * 2.1).sin();
+                let x = Point3::from(q + dir * off);
+                let fresh = local_plane(&target, &tree, &x, k, max_d2, &mut PlaneCache::default());
+                let was = cache.holds(&x.coords, max_d2.sqrt());
+                let kept = local_plane(&target, &tree, &x, k, max_d2, &mut cache);
+                total += 1;
+                skipped += usize::from(was.is_some());
+                match (fresh, kept) {
+                    (None, None) => {}
+                    (Some((r, n)), Some((r2, n2))) => {
+                        assert_eq!(r.to_bits(), r2.to_bits(), "point {i} step {step}");
+                        assert_eq!(n, n2, "point {i} step {step}");
+                    }
+                    other => panic!("point {i} step {step}: {other:?}"),
+                }
+            }
+        }
+        assert!(skipped * 3 > total, "{skipped} of {total} queries skipped");
+    }
+}

@@ -1,0 +1,156 @@
+//! A target mesh as a model: its exact distance field ([`crate::field::mesh::MeshField`]) and
+//! points sampled on it, registered against without any fitting.
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::base::error::{Error, Role};
+use crate::field::baked::{BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
+use crate::field::mesh::MeshField;
+use crate::geometry::cloud::{validate, Normalization};
+use crate::geometry::tree::{build_tree, Tree};
+use crate::pipeline::registration::Registration;
+use crate::pipeline::settings::RegisterSettings;
+use crate::pipeline::surface::{Surface, WithGrid};
+
+/// The mesh's field with the points the polish and the quality figures use: samples on its
+/// faces, unit frame.
+#[derive(Clone, Debug)]
+pub(crate) struct MeshSurface {
+    field: MeshField,
+    target: Vec<[f32; 3]>,
+    tree: Tree,
+}
+
+impl Surface for MeshSurface {
+    type Phi = MeshField;
+    type Coarse = MeshField;
+    fn phi(&self) -> &MeshField {
+        &self.field
+    }
+    fn coarse(&self) -> &MeshField {
+        &self.field
+    }
+    fn target(&self) -> &[[f32; 3]] {
+        &self.target
+    }
+    fn tree(&self) -> &Tree {
+        &self.tree
+    }
+    fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
+    fn refine(&mut self, _: usize, _: f32) {}
+}
+
+/// A target mesh as an exact distance field: register sources onto it with no fitting, as
+/// onto a fitted [`crate::SdfModel`] with Φ frozen.
+#[derive(Clone, Debug)]
+pub struct MeshModel {
+    norm: Normalization,
+    surface: MeshSurface,
+    /// The distance baked into a grid for the multi-start ([`crate::field::baked`]).
+    grid: std::sync::Arc<BakedGrid>,
+}
+
+impl MeshModel {
+    /// The model of the mesh `vertices` (user units) and `triangles` (indices into
+    /// `vertices`). The polish and the quality figures use
+    /// [`RegisterSettings::max_target_points`] points sampled uniformly by area on the faces
+    /// (seeded by [`RegisterSettings::seed`]); the multi-start reads the distance baked into a
+    /// grid, made here ([`crate::field::baked`]). Fails on a non-finite vertex, an index out of
+    /// range, no triangles or no area.
+    pub fn new(
+        vertices: &[Point3<f64>],
+        triangles: &[[usize; 3]],
+        settings: &RegisterSettings,
+    ) -> Result<Self, Error> {
+        settings.validate()?;
+        validate(vertices, Role::Target, 3)?;
+        // Indices beyond u32 are out of range as well (MeshField::new says so).
+        let indices: Vec<[u32; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|i| u32::try_from(i).unwrap_or(u32::MAX)))
+            .collect();
+        let norm = Normalization::from_target(vertices)?;
+        let unit_vertices: Vec<[f32; 3]> = vertices.iter().map(|p| norm.to_unit(p)).collect();
+        let field = MeshField::new(&unit_vertices, &indices)?;
+        let mut rng =
+            ChaCha8Rng::seed_from_u64(settings.seed ^ crate::pipeline::target::FIT_SEED_SALT);
+        let samples = crate::geometry::mesh::sample_surface(
+            vertices,
+            triangles,
+            settings
+                .max_target_points
+                .max(crate::pipeline::settings::MIN_POINTS),
+            &mut rng,
+        )
+        .ok_or_else(|| Error::InvalidMesh("the triangles have no area".into()))?;
+        let target: Vec<[f32; 3]> = samples.iter().map(|p| norm.to_unit(p)).collect();
+        let tree = build_tree(&target);
+        let grid = crate::base::pool::in_pool(settings.threads, || {
+            BakedGrid::bake(&field, BAKED_CELLS, BAKED_HALF_EXTENT)
+        })?;
+        Ok(MeshModel {
+            norm,
+            surface: MeshSurface {
+                field,
+                target,
+                tree,
+            },
+            grid: std::sync::Arc::new(grid),
+        })
+    }
+
+    /// Whether the distance is signed (a closed, consistently oriented mesh).
+    pub fn is_signed(&self) -> bool {
+        self.surface.field.is_signed()
+    }
+
+    /// Registers `source` (user units) onto the mesh: the multi-start (or `init`, mapping
+    /// source into target), LM, the robust re-run when needed, the polish and the shift
+    /// search, as [`crate::SdfModel::register`]; `settings.mlp`, `settings.fit` and
+    /// `settings.max_target_points` are not read.
+    pub fn register(
+        &self,
+        source: &[Point3<f64>],
+        init: Option<&Isometry3<f64>>,
+        settings: &RegisterSettings,
+    ) -> Result<Registration, Error> {
+        crate::pipeline::register::against(
+            &self.norm,
+            &WithGrid::new(&self.surface, &self.grid),
+            source,
+            init,
+            settings,
+            false,
+            &|_| {},
+        )
+    }
+
+    /// Φ and ∇Φ at `points` (target units and frame), in parallel.
+    pub fn evaluate(&self, points: &[Point3<f64>]) -> (Vec<f64>, Vec<Vector3<f64>>) {
+        crate::field::evaluate_user(&self.norm, &self.surface.field, points)
+    }
+
+    /// The distance at `points`, target units (negative inside when [`MeshModel::is_signed`]).
+    pub fn distance(&self, points: &[Point3<f64>]) -> Vec<f64> {
+        self.evaluate(points).0
+    }
+
+    /// The closest surface point of each of `points`, target units and frame.
+    pub fn closest_points(&self, points: &[Point3<f64>]) -> Vec<Point3<f64>> {
+        crate::field::closest_user(points, self.evaluate(points))
+    }
+
+    /// The points sampled on the faces (target units and frame).
+    pub fn target_points(&self) -> Vec<Point3<f64>> {
+        self.surface
+            .target
+            .iter()
+            .map(|p| {
+                self.norm
+                    .to_user(&Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,190 @@
+//! Coarse-to-fine (paper eq. 18-1) and the final LM on the frozen Φ.
+//!
+//! [`CoarseToFineSettings::alternations`] times: every hypothesis's moved source joins Φ's query
+//! set (queries carry their true nearest target point, so extra ones only teach Φ more of the far
+//! field; with a robust kernel, points at `|Φ| ≥ c`, outside the target's coverage, are left
+//! out), Φ is refined for [`crate::FitSettings::refine_steps`] Adam steps, and each hypothesis
+//! takes [`CoarseToFineSettings::lm_steps_per_alternation`] LM steps. Halfway, hypotheses that
+//! fit clearly worse than the best are dropped; at the end the best-fitting one is kept (near-ties
+//! to the least rotation). Then LM on the frozen Φ until converged ([`final_lm`]).
+//!
+//! Entry points: [`alternate`], [`final_lm`].
+
+use std::borrow::Cow;
+
+use nalgebra::{Isometry3, Point3};
+
+use crate::base::error::Error;
+use crate::field::Field;
+use crate::fit::settings::FitSettings;
+use crate::geometry::cloud::transformed_f32;
+use crate::pipeline::multistart::{least_motion, nn_score, MultistartSettings};
+use crate::pipeline::report::Stage;
+use crate::pipeline::robust::KernelPolicy;
+use crate::pipeline::surface::Surface;
+use crate::solve::kernel::Kernel;
+use crate::solve::lm::{Lm, LmSettings, StopReason};
+
+/// The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CoarseToFineSettings {
+    /// Alternations of Φ refinement ([`FitSettings::refine_steps`] Adam steps) and LM steps.
+    /// Default 10.
+    pub alternations: usize,
+    /// LM steps per alternation. Default 2.
+    pub lm_steps_per_alternation: usize,
+    /// LM steps at most on the final, frozen Φ. Default 10.
+    pub final_lm_steps: usize,
+}
+
+impl Default for CoarseToFineSettings {
+    fn default() -> Self {
+        Self {
+            alternations: 10,
+            lm_steps_per_alternation: 2,
+            final_lm_steps: 10,
+        }
+    }
+}
+
+impl CoarseToFineSettings {
+    /// Checks every field (every count is valid: 0 alternations or final steps skip the stage).
+    pub fn validate(&self) -> Result<(), Error> {
+        Ok(())
+    }
+}
+
+/// What the alternations did.
+pub(crate) struct Alternated {
+    /// The winning hypothesis's solver.
+    pub lm: Lm,
+    /// Hypotheses still alive at the end (before the pick).
+    pub survivors: usize,
+    /// Index of the winner among the hypotheses as they came in (0 = the multi-start's pick).
+    pub winner: usize,
+}
+
+/// The settings groups the alternations read (of [`crate::RegisterSettings`]).
+pub(crate) struct Schedule<'a> {
+    /// The schedule itself.
+    pub coarse_to_fine: &'a CoarseToFineSettings,
+    /// The tie margin and truncation of the halfway drop and the final pick.
+    pub multistart: &'a MultistartSettings,
+    /// The solver.
+    pub lm: &'a LmSettings,
+    /// Φ's refinement steps and learning rate.
+    pub fit: &'a FitSettings,
+}
+
+/// The alternations of Φ refinement and LM steps over every hypothesis (unit frame), from
+/// `hypotheses`; returns the best-fitting one's solver. Without `refine`, Φ stays as it is (a
+/// stored model's) and only the LM steps run; with it, `fit` becomes a private copy the first
+/// time it is trained. [`crate::MultistartSettings::tie`] decides the halfway drop and the
+/// final pick.
+pub(crate) fn alternate<S: Surface>(
+    fit: &mut Cow<'_, S>,
+    source: &[Point3<f64>],
+    hypotheses: &[Isometry3<f64>],
+    s: &Schedule<'_>,
+    policy: KernelPolicy,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Alternated {
+    let c = &s.coarse_to_fine;
+    let (tie, tau2) = (s.multistart.tie, s.multistart.truncation.powi(2));
+    let mut lms: Vec<(usize, Lm)> = hypotheses
+        .iter()
+        .map(|p| Lm::new(*p, s.lm))
+        .enumerate()
+        .collect();
+    for k in 0..c.alternations {
+        let kappa = policy.kappa(k, c.alternations);
+        // One evaluation of Φ at the moved source serves the kernel's scale and the gate.
+        let mut kernels = Vec::with_capacity(lms.len());
+        for (_, lm) in &lms {
+            let moved = transformed_f32(source, &lm.pose);
+            if !policy.is_robust() {
+                if refine {
+                    fit.to_mut().add_source_queries(&moved);
+                }
+                kernels.push(Kernel::L2);
+                continue;
+            }
+            let (phi, _) = fit.phi().eval_points(&moved, false);
+            let kernel = policy.kernel(&phi, kappa);
+            if refine {
+                let scale = kernel.scale().unwrap_or(f64::INFINITY);
+                let near: Vec<[f32; 3]> = moved
+                    .iter()
+                    .zip(&phi)
+                    .filter(|(_, v)| (v.abs() as f64) < scale)
+                    .map(|(x, _)| *x)
+                    .collect();
+                fit.to_mut().add_source_queries(&near);
+            }
+            kernels.push(kernel);
+        }
+        if refine {
+            fit.to_mut().refine(s.fit.refine_steps, s.fit.refine_lr);
+        }
+        for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
+            lm.run(fit.phi(), source, kernel, c.lm_steps_per_alternation);
+        }
+        progress(Stage::Alternation(k + 1, c.alternations));
+        // Halfway, hypotheses that fit clearly worse than the best are dropped.
+        if k + 1 == c.alternations / 2 && lms.len() > 1 {
+            let scores: Vec<f64> = lms
+                .iter()
+                .map(|(_, lm)| nn_score(fit.tree(), source, &lm.pose, tau2))
+                .collect();
+            let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
+            lms = lms
+                .into_iter()
+                .zip(scores)
+                .filter(|(_, score)| *score <= best * (1.0 + tie))
+                .map(|(lm, _)| lm)
+                .collect();
+        }
+    }
+    let scored: Vec<(f64, Isometry3<f64>)> = lms
+        .iter()
+        .map(|(_, lm)| (nn_score(fit.tree(), source, &lm.pose, tau2), lm.pose))
+        .collect();
+    let survivors = lms.len();
+    let (winner, lm) = lms.swap_remove(least_motion(&scored, tie));
+    Alternated {
+        lm,
+        survivors,
+        winner,
+    }
+}
+
+/// LM on the frozen Φ from `lm`'s pose until converged, at most
+/// [`CoarseToFineSettings::final_lm_steps`] steps, with the policy's final κ.
+pub(crate) fn final_lm<S: Surface>(
+    fit: &S,
+    source: &[Point3<f64>],
+    lm: &mut Lm,
+    c: &CoarseToFineSettings,
+    policy: KernelPolicy,
+) -> StopReason {
+    let kernel = kernel_at(fit.phi(), source, &lm.pose, policy, policy.kappa_end());
+    lm.run(fit.phi(), source, kernel, c.final_lm_steps)
+}
+
+/// The policy's kernel for `source` (unit frame) moved by `pose`, with `kappa`: Φ is evaluated
+/// only when the scale is adaptive.
+pub(crate) fn kernel_at<F: Field + ?Sized>(
+    phi: &F,
+    source: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    policy: KernelPolicy,
+    kappa: f64,
+) -> Kernel {
+    if matches!(policy, KernelPolicy::Adaptive { .. }) {
+        let (values, _) = phi.eval_points(&transformed_f32(source, pose), false);
+        policy.kernel(&values, kappa)
+    } else {
+        policy.kernel(&[], kappa)
+    }
+}

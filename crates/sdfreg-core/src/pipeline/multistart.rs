@@ -1,0 +1,314 @@
+//! Initial hypotheses without an initial guess: a multi-start over the cube group's rotations.
+//!
+//! LM on Φ has a basin of a few tens of degrees; the paper's protocols reach 45° per axis and
+//! real scans any rotation. Each start aligns the centroids with one of the 24 rotations of the
+//! cube group ([`cube_rotations`]), also with the translation shifted by
+//! ±[`MultistartSettings::offset`] along each axis (a partial source's centroid is biased):
+//! 168 starts by default. Each is refined by a few LM steps on the pre-fitted Φ and scored on the
+//! target points themselves ([`nn_score`]: the pre-fitted Φ is too coarse to separate
+//! near-symmetric poses). The identity start and the best distinct starts are refined further;
+//! among near-ties the least rotation wins ([`least_motion`], a prior for symmetric shapes). The
+//! hypotheses carried on are that pick, the identity start and the best score, when distinct.
+//!
+//! Entry point: [`initial_hypotheses`].
+
+use kiddo::SquaredEuclidean;
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::base::check;
+use crate::base::error::Error;
+use crate::field::Field;
+use crate::geometry::cloud::{subsample, transformed_f32};
+use crate::geometry::tree::Tree;
+use crate::pipeline::surface::Surface;
+use crate::solve::kernel::Kernel;
+use crate::solve::lm::{Lm, LmSettings};
+
+/// The multi-start: initial hypotheses when no initial guess is given.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct MultistartSettings {
+    /// Try the 24 rotations of the cube group about the centroids. Default true (false:
+    /// centroid alignment only, refined like a start).
+    pub enabled: bool,
+    /// Besides the centroid alignment, starts shifted by this much along ±x, ±y, ±z
+    /// (normalised units); 0 disables. Default 0.1 (a partial source's centroid is biased).
+    pub offset: f64,
+    /// Source points each start uses at most (seeded subsample). Default 128.
+    pub points: usize,
+    /// LM steps per start on the pre-fitted Φ. Default 5.
+    pub lm_steps: usize,
+    /// Starts kept after the first round, for further refinement (the identity start always
+    /// among them). Default 4.
+    pub keep: usize,
+    /// LM steps per kept start in the second round. Default 15.
+    pub refine_steps: usize,
+    /// Starts are scored by the mean squared distance of the moved points to their nearest
+    /// target point, each truncated at this distance (normalised units). Default 0.05.
+    pub truncation: f64,
+    /// Starts whose score is within this fraction of the best are ties, and the one with the
+    /// smallest rotation wins (a least-motion prior for symmetric shapes); also the margin by
+    /// which a hypothesis may fit worse than the best and survive halfway through the
+    /// coarse-to-fine loop. Default 0.25.
+    pub tie: f64,
+    /// Two starts are the same pose unless their rotations differ by more than this, degrees…
+    /// Default 5.
+    pub distinct_rotation_deg: f64,
+    /// …or their translations by more than this, normalised units. Default 0.02.
+    pub distinct_translation: f64,
+    /// Pose hypotheses carried into the coarse-to-fine loop (the least-motion pick, the identity
+    /// start and the best-scoring start, when distinct); the best-fitting one wins. Default 3.
+    pub hypotheses: usize,
+}
+
+impl Default for MultistartSettings {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            offset: 0.1,
+            points: 128,
+            lm_steps: 5,
+            keep: 4,
+            refine_steps: 15,
+            truncation: 0.05,
+            tie: 0.25,
+            distinct_rotation_deg: 5.0,
+            distinct_translation: 0.02,
+            hypotheses: 3,
+        }
+    }
+}
+
+impl MultistartSettings {
+    /// Checks every field; the error names it (`multistart.keep`, …).
+    pub fn validate(&self) -> Result<(), Error> {
+        check::non_negative("multistart.offset", self.offset)?;
+        check::count_at_least("multistart.points", self.points, 1)?;
+        check::count_at_least("multistart.keep", self.keep, 1)?;
+        check::positive("multistart.truncation", self.truncation)?;
+        check::non_negative("multistart.tie", self.tie)?;
+        check::non_negative(
+            "multistart.distinct_rotation_deg",
+            self.distinct_rotation_deg,
+        )?;
+        check::non_negative("multistart.distinct_translation", self.distinct_translation)?;
+        check::count_at_least("multistart.hypotheses", self.hypotheses, 1)
+    }
+}
+
+/// The 24 rotations of the cube group: signed permutation matrices with determinant +1,
+/// the identity first.
+pub fn cube_rotations() -> Vec<Rotation3<f64>> {
+    let perms = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
+    let mut out = Vec::with_capacity(24);
+    for p in perms {
+        for signs in 0..8 {
+            let mut m = Matrix3::zeros();
+            for (row, &col) in p.iter().enumerate() {
+                m[(row, col)] = if signs >> row & 1 == 1 { -1.0 } else { 1.0 };
+            }
+            if m.determinant() > 0.0 {
+                out.push(Rotation3::from_matrix_unchecked(m));
+            }
+        }
+    }
+    out
+}
+
+/// Mean squared distance from `points` moved by `pose` to their nearest target point, each
+/// truncated at `tau2` (normalised units²): how well a pose fits the target points themselves.
+pub(crate) fn nn_score(
+    tree: &Tree,
+    points: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+    tau2: f64,
+) -> f64 {
+    let sum: f64 = transformed_f32(points, pose)
+        .iter()
+        .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
+        .sum();
+    sum / points.len().max(1) as f64
+}
+
+/// Index of the candidate with the least rotation among those whose score is within
+/// `(1 + tie)` of the best (the least-motion prior for symmetric shapes).
+pub(crate) fn least_motion(candidates: &[(f64, Isometry3<f64>)], tie: f64) -> usize {
+    let best = candidates.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
+    (0..candidates.len())
+        .filter(|&i| candidates[i].0 <= best * (1.0 + tie))
+        .min_by(|&a, &b| {
+            candidates[a]
+                .1
+                .rotation
+                .angle()
+                .total_cmp(&candidates[b].1.rotation.angle())
+        })
+        .unwrap_or(0)
+}
+
+impl MultistartSettings {
+    /// Whether two poses differ by more than [`Self::distinct_rotation_deg`] or
+    /// [`Self::distinct_translation`].
+    fn distinct(&self, a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+        a.rotation.angle_to(&b.rotation) > self.distinct_rotation_deg.to_radians()
+            || (a.translation.vector - b.translation.vector).norm() > self.distinct_translation
+    }
+
+    /// The starts: each rotation about the centroids (`c_src` onto `c_tgt`), plus (when
+    /// enabled and [`Self::offset`] > 0) the same with the translation shifted by ±offset along
+    /// each axis. The identity start comes first.
+    fn starts(&self, c_src: Vector3<f64>, c_tgt: Vector3<f64>) -> Vec<Isometry3<f64>> {
+        let rotations = if self.enabled {
+            cube_rotations()
+        } else {
+            vec![Rotation3::identity()]
+        };
+        let mut offsets = vec![Vector3::zeros()];
+        if self.enabled && self.offset > 0.0 {
+            for k in 0..3 {
+                for sign in [1.0, -1.0] {
+                    let mut v = Vector3::zeros();
+                    v[k] = sign * self.offset;
+                    offsets.push(v);
+                }
+            }
+        }
+        offsets
+            .iter()
+            .flat_map(|d| {
+                rotations.iter().map(move |r| {
+                    let q = UnitQuaternion::from_rotation_matrix(r);
+                    Isometry3::from_parts(Translation3::from(c_tgt - r * c_src + d), q)
+                })
+            })
+            .collect()
+    }
+}
+
+/// What the multi-start produced.
+pub(crate) struct Hypotheses {
+    /// Poses (unit frame) for the coarse-to-fine loop: the least-motion pick first.
+    pub poses: Vec<Isometry3<f64>>,
+    /// Starts tried.
+    pub starts: usize,
+}
+
+/// The initial hypotheses for the unit-frame `source` against the pre-fitted Φ of `fit`, with
+/// `kernel` on the LM steps. The starts' steps read [`Surface::coarse`] (but the identity
+/// start's), the finalists' Φ.
+/// `rng` draws the starts' source subsample.
+pub(crate) fn initial_hypotheses<S: Surface>(
+    fit: &S,
+    source: &[Point3<f64>],
+    s: &MultistartSettings,
+    lm: &LmSettings,
+    kernel: impl Fn(&dyn Field, &[Point3<f64>], &Isometry3<f64>) -> Kernel + Sync,
+    rng: &mut ChaCha8Rng,
+) -> Hypotheses {
+    let c_src = crate::geometry::cloud::centroid(source).coords;
+    let c_tgt: Vector3<f64> = fit
+        .target()
+        .iter()
+        .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .sum::<Vector3<f64>>()
+        / fit.target().len() as f64;
+    let points = subsample(source, s.points, rng);
+    let tau2 = s.truncation * s.truncation;
+    let refine = |phi: &dyn Field, pose: Isometry3<f64>, steps: usize| {
+        let mut solver = Lm::new(pose, lm);
+        solver.run(phi, &points, kernel(phi, &points, &pose), steps);
+        (
+            nn_score(fit.tree(), &points, &solver.pose, tau2),
+            solver.pose,
+        )
+    };
+    let starts = s.starts(c_src, c_tgt);
+    let mut candidates: Vec<(f64, Isometry3<f64>)> = starts
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            // The identity start, which the least-motion prior favours among ties, reads Φ.
+            let phi: &dyn Field = if i == 0 { fit.phi() } else { fit.coarse() };
+            refine(phi, *p, s.lm_steps)
+        })
+        .collect();
+    // The identity start (plain centroid alignment) is always a finalist: with the least-motion
+    // tie-break it wins whenever nothing fits clearly better. The others follow by score
+    // (stable sort); starts that converged to the same pose count once.
+    let identity = candidates[0].1;
+    candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut kept: Vec<Isometry3<f64>> = vec![identity];
+    for (_, p) in &candidates {
+        if kept.iter().all(|k| s.distinct(k, p)) && kept.len() < s.keep {
+            kept.push(*p);
+        }
+    }
+    let finalists: Vec<(f64, Isometry3<f64>)> = kept
+        .par_iter()
+        .map(|p| refine(fit.phi(), *p, s.refine_steps))
+        .collect();
+    // Hypotheses: the least-motion pick among near-ties, the identity start and the best score
+    // (distinct ones, at most `hypotheses`). The pre-fitted Φ is often too coarse to decide.
+    let pick = least_motion(&finalists, s.tie);
+    let best = (0..finalists.len())
+        .min_by(|&a, &b| finalists[a].0.total_cmp(&finalists[b].0))
+        .unwrap_or(0);
+    let mut poses: Vec<Isometry3<f64>> = Vec::new();
+    for i in [pick, 0, best] {
+        let p = finalists[i].1;
+        if poses.len() < s.hypotheses && poses.iter().all(|q| s.distinct(q, &p)) {
+            poses.push(p);
+        }
+    }
+    Hypotheses {
+        poses,
+        starts: starts.len(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cube_group_has_24_distinct_proper_rotations() {
+        let rs = cube_rotations();
+        assert_eq!(rs.len(), 24);
+        assert_eq!(rs[0], Rotation3::identity());
+        for (i, a) in rs.iter().enumerate() {
+            assert!((a.matrix().determinant() - 1.0).abs() < 1e-12);
+            for b in &rs[i + 1..] {
+                assert!(crate::geometry::se3::rotation_angle(a, b) > 1.0);
+            }
+        }
+    }
+
+    #[test]
+    fn starts_shift_each_rotation_along_each_axis() {
+        let s = MultistartSettings::default();
+        let starts = s.starts(Vector3::new(0.1, 0.0, 0.0), Vector3::zeros());
+        assert_eq!(starts.len(), 24 * 7);
+        assert_eq!(starts[0].translation.vector, Vector3::new(-0.1, 0.0, 0.0));
+        let off = MultistartSettings {
+            enabled: false,
+            ..Default::default()
+        };
+        assert_eq!(off.starts(Vector3::zeros(), Vector3::zeros()).len(), 1);
+    }
+
+    #[test]
+    fn least_motion_prefers_the_smaller_rotation_among_ties() {
+        let small = Isometry3::rotation(Vector3::new(0.0, 0.0, 0.1));
+        let large = Isometry3::rotation(Vector3::new(0.0, 0.0, 2.0));
+        assert_eq!(least_motion(&[(1.0, large), (1.1, small)], 0.25), 1);
+        assert_eq!(least_motion(&[(1.0, large), (1.5, small)], 0.25), 0);
+    }
+}

@@ -1,0 +1,302 @@
+//! Registration: the paper's stages (Sec. 3.4) as one list, and its result.
+//!
+//! [`register`] moves the source onto the target's neural SDF Φ in these stages, each a function
+//! of its own:
+//! 1. **normalise** — validate; both clouds into the target's unit frame (bounding-box centre,
+//!    largest side 1), subsampled to [`RegisterSettings::max_source_points`] /
+//!    [`RegisterSettings::max_target_points`] ([`crate::geometry::cloud`]);
+//! 2. **pre-fit Φ** on the target ([`crate::FitSettings::prefit_steps`] Adam steps, eq. 18–20);
+//! 3. **initial hypotheses** — the caller's guess, or the multi-start ([`crate::pipeline::multistart`]);
+//! 4. **coarse-to-fine** (eq. 18-1) — alternate Φ refinement with the moved source among its
+//!    queries and LM steps (eq. 9–13) per hypothesis; keep the best ([`crate::pipeline::coarse_to_fine`]);
+//! 5. **final LM** on the frozen Φ until converged;
+//! 6. **robust re-run** when needed — [`crate::RobustMode::Auto`] redoes a poorly fitting
+//!    least-squares result with the Geman–McClure kernel ([`crate::pipeline::robust`]);
+//! 7. **polish** — robust point-to-plane steps against the target points ([`crate::pipeline::polish`]);
+//! 8. **shift search** — translations that lay clearly more source points onto the target, each
+//!    polished, kept on a fitness gain ([`crate::pipeline::shift_search`]);
+//! 9. **measure** — fitness, inlier RMSE, JᵀJ and the free motions, in the user's frame
+//!    ([`crate::solve::degeneracy`]).
+//!
+//! [`Registration::stages`] records what each stage did.
+//!
+//! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
+//! `p_target = R p_source + t`, in the units of the inputs.
+
+use std::borrow::Cow;
+use std::time::Instant;
+
+use nalgebra::{Isometry3, Point3};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::base::error::{Error, Role};
+use crate::base::pool::in_pool;
+use crate::field::Field;
+use crate::geometry::cloud::{subsample, validate, Normalization};
+use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
+use crate::pipeline::multistart::initial_hypotheses;
+use crate::pipeline::polish::polish;
+use crate::pipeline::registration::{measure, Registration, Trace};
+use crate::pipeline::report::{InitialReport, Stage};
+use crate::pipeline::rerun::robust_rerun;
+use crate::pipeline::robust::{outside_share, KernelPolicy};
+use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
+use crate::pipeline::shift_search::search;
+use crate::pipeline::surface::Surface;
+use crate::pipeline::target::prefit;
+
+/// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
+/// target) replaces the multi-start when given.
+pub fn register(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<Registration, Error> {
+    register_with_progress(source, target, init, settings, &|_| {})
+}
+
+/// [`register`] with a progress callback (called from the calling thread).
+pub fn register_with_progress(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let start = Instant::now();
+    check_inputs(source, init, settings)?;
+    validate(target, Role::Target, MIN_POINTS)?;
+    let mut r = in_pool(settings.threads, || {
+        let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+        let source = subsample(source, settings.max_source_points, &mut rng);
+        let (norm, fitter) = prefit(target, settings, &mut rng, progress)?;
+        register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)
+    })??;
+    r.time = start.elapsed();
+    Ok(r)
+}
+
+/// [`crate::SdfModel::register`] (`refine` false), [`crate::SdfModel::register_refined`] and
+/// [`crate::MeshModel::register`]: `source` against `surface`, the target in the unit frame of
+/// `norm`.
+pub(crate) fn against<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    check_inputs(source, init, settings)?;
+    in_pool(settings.threads, || {
+        against_in_pool(norm, surface, source, init, settings, refine, progress)
+    })?
+}
+
+/// [`against`] within the current pool, `settings` already checked.
+pub(crate) fn against_in_pool<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let source = subsample(source, settings.max_source_points, &mut rng);
+    register_drawn(
+        norm, surface, &source, rng, init, settings, refine, progress,
+    )
+}
+
+/// Checks the settings, the source and the initial guess.
+fn check_inputs(
+    source: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<(), Error> {
+    check_settings(init, settings)?;
+    validate(source, Role::Source, MIN_POINTS)
+}
+
+/// Checks the settings and the initial guess.
+pub(crate) fn check_settings(
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<(), Error> {
+    settings.validate()?;
+    if init.is_some_and(|t| !t.to_homogeneous().iter().all(|v| v.is_finite())) {
+        return Err(Error::InvalidInit);
+    }
+    Ok(())
+}
+
+/// Stages 3–9 for the already subsampled `source` against `surface` (the target in the unit
+/// frame of `norm`), `rng` being the registration's random stream after the subsampling; the
+/// robust re-run (stage 6) starts again from the same surface and stream.
+#[allow(clippy::too_many_arguments)]
+fn register_drawn<S: Surface>(
+    norm: &Normalization,
+    surface: &S,
+    source: &[Point3<f64>],
+    rng: ChaCha8Rng,
+    init: Option<&Isometry3<f64>>,
+    s: &RegisterSettings,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let start = Instant::now();
+    let unit = in_unit_frame(norm, source)?;
+    let run = |s: &RegisterSettings, policy| {
+        let mut rng = rng.clone();
+        run(surface, &unit, &mut rng, init, s, policy, refine, progress)
+    };
+    let first = run(s, s.robust.first_run());
+    let outside = |r: &Registration| {
+        let pose = unit.norm.pose_to_unit(&r.t_target_source);
+        let moved = crate::geometry::cloud::transformed_f32(&unit.source, &pose);
+        outside_share(&moved, surface.target(), surface.tree())
+    };
+    let mut r = robust_rerun(first, s, outside, run);
+    r.time = start.elapsed();
+    Ok(r)
+}
+
+/// One registration run with the kernel `policy` against `surface` (a private copy of Φ refined
+/// when `refine`): stages 3–9 of the module docs, less the robust re-run (which calls it again).
+#[allow(clippy::too_many_arguments)]
+fn run<S: Surface>(
+    surface: &S,
+    unit: &Unit,
+    rng: &mut ChaCha8Rng,
+    init: Option<&Isometry3<f64>>,
+    s: &RegisterSettings,
+    policy: KernelPolicy,
+    refine: bool,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Registration {
+    let mut fit = Cow::Borrowed(surface);
+    let (hypotheses, initial) = initial_pose(&*fit, unit, init, s, policy, rng, progress);
+    let Alternated {
+        mut lm,
+        survivors,
+        winner,
+    } = alternate(
+        &mut fit,
+        &unit.source,
+        &hypotheses,
+        &s.schedule(),
+        policy,
+        refine,
+        progress,
+    );
+    let after_alternations = lm.pose;
+    progress(Stage::Final);
+    let lm_stop = final_lm(&*fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
+    let polish_settings = s.polish.for_target(fit.is_local());
+    let planes = fit
+        .is_local()
+        .then(|| fit.target_planes(polish_settings.neighbours));
+    let polish_from = |start: &Isometry3<f64>| {
+        polish(
+            &unit.source,
+            fit.target(),
+            fit.tree(),
+            start,
+            &polish_settings,
+            planes.as_deref(),
+        )
+    };
+    let polished = polish_from(&lm.pose);
+    let searched = search(
+        &unit.source,
+        fit.target(),
+        fit.tree(),
+        &polished.pose,
+        &s.shift_search,
+        polish_from,
+        s.inlier_distance,
+    );
+    let trace = Trace {
+        start: hypotheses[winner],
+        initial,
+        survivors,
+        winner,
+        after_alternations,
+        lm,
+        lm_stop,
+        polished,
+        searched,
+    };
+    measure(
+        &unit.source,
+        &unit.norm,
+        &*fit,
+        s,
+        policy.is_robust(),
+        trace,
+    )
+}
+
+/// The source in the target's unit frame.
+struct Unit {
+    /// The similarity from the user's frame into the unit frame.
+    norm: Normalization,
+    /// Source points (subsampled), unit frame.
+    source: Vec<Point3<f64>>,
+}
+
+/// Stage 1 for the source: the (subsampled) source in the target's unit frame; a source with no
+/// extent there is refused. (The target's part is [`SdfModel::fit`]'s.)
+fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, Error> {
+    let source: Vec<Point3<f64>> = source.iter().map(|p| norm.to_unit_f64(p)).collect();
+    let (lo, hi) = crate::geometry::cloud::bounding_box(&source).expect("validated non-empty");
+    if (hi - lo).max() < 1e-9 {
+        return Err(Error::NoExtent {
+            role: Role::Source,
+            extent: (hi - lo).max() * norm.scale,
+        });
+    }
+    Ok(Unit {
+        norm: *norm,
+        source,
+    })
+}
+
+/// Stage 3: the hypotheses (unit frame) the coarse-to-fine loop starts from — the caller's
+/// guess, or the multi-start's — and the report of where they came from.
+fn initial_pose<S: Surface>(
+    fit: &S,
+    unit: &Unit,
+    init: Option<&Isometry3<f64>>,
+    s: &RegisterSettings,
+    policy: KernelPolicy,
+    rng: &mut ChaCha8Rng,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> (Vec<Isometry3<f64>>, InitialReport) {
+    if let Some(t) = init {
+        let given = InitialReport {
+            given: true,
+            starts: 0,
+            hypotheses: 1,
+            rotation_deg: 0.0,
+        };
+        return (vec![unit.norm.pose_to_unit(t)], given);
+    }
+    progress(Stage::Multistart);
+    let kernel = |phi: &dyn Field, points: &[Point3<f64>], pose: &Isometry3<f64>| {
+        kernel_at(phi, points, pose, policy, policy.kappa_start())
+    };
+    let found = initial_hypotheses(fit, &unit.source, &s.multistart, &s.lm, kernel, rng);
+    let report = InitialReport {
+        given: false,
+        starts: found.starts,
+        hypotheses: found.poses.len(),
+        rotation_deg: 0.0,
+    };
+    (found.poses, report)
+}

@@ -1,0 +1,193 @@
+//! What each stage of a registration did: [`Stages`], part of [`crate::Registration`].
+//!
+//! Every stage that can move the pose says how far it moved the source ([`PoseChange`], in the
+//! user's units), and the stages that decide something say what they decided: the hypotheses of
+//! the multi-start and which one won, why the final LM stopped, whether the polish was applied,
+//! snapped or undone, whether the shift search moved the pose, and whether the robust re-run ran
+//! and was kept. Serialises to JSON with snake_case names (the CLI's `stages`, Python's
+//! `Registration.stages`).
+
+use nalgebra::{Isometry3, Point3};
+
+use crate::solve::lm::StopReason;
+
+/// How far a stage moved the source: the rotation between the poses before and after, and the
+/// RMS displacement of the (subsampled) source points, in the inputs' units.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PoseChange {
+    /// Rotation angle between the two poses, degrees.
+    pub rotation_deg: f64,
+    /// RMS displacement of the source points, the inputs' units.
+    pub translation: f64,
+}
+
+impl PoseChange {
+    /// The change from `a` to `b` of the unit-frame `source` points; `scale` maps unit lengths
+    /// into the user's units.
+    pub(crate) fn between(
+        source: &[Point3<f64>],
+        a: &Isometry3<f64>,
+        b: &Isometry3<f64>,
+        scale: f64,
+    ) -> Self {
+        if a == b {
+            // Exactly zero (the rotation angle of q⁻¹q is not, in floating point).
+            return Self::default();
+        }
+        let d2: f64 = source.iter().map(|p| (b * p - a * p).norm_squared()).sum();
+        Self {
+            rotation_deg: a.rotation.angle_to(&b.rotation).to_degrees(),
+            translation: (d2 / source.len().max(1) as f64).sqrt() * scale,
+        }
+    }
+
+    /// Whether the pose moved at all.
+    pub fn moved(&self) -> bool {
+        self.rotation_deg > 0.0 || self.translation > 0.0
+    }
+}
+
+/// Where the starting pose came from.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct InitialReport {
+    /// The caller's initial guess was used (no multi-start).
+    pub given: bool,
+    /// Multi-start starts tried (0 with an initial guess).
+    pub starts: usize,
+    /// Hypotheses carried into the coarse-to-fine loop.
+    pub hypotheses: usize,
+    /// Rotation angle of the winning hypothesis's starting pose, degrees: for the multi-start,
+    /// how far its pick turned the source away from plain centroid alignment; with an initial
+    /// guess, that guess's rotation.
+    pub rotation_deg: f64,
+}
+
+/// The coarse-to-fine loop.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CoarseToFineReport {
+    /// Hypotheses still in the race at the end (the others fitted clearly worse halfway).
+    pub survivors: usize,
+    /// Which hypothesis won: 0 is the multi-start's least-motion pick, then the identity start
+    /// and the best-scoring start (in that order, when distinct).
+    pub winner: usize,
+    /// From the winner's starting pose to its pose after the alternations.
+    pub change: PoseChange,
+}
+
+/// The final LM on the frozen Φ.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FinalLmReport {
+    /// Why it stopped.
+    pub stop_reason: StopReason,
+    /// How far it moved the source.
+    pub change: PoseChange,
+}
+
+/// What the point-to-plane polish did ([`crate::PolishSettings`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum PolishResult {
+    /// Disabled (`polish.iterations = 0`).
+    Off,
+    /// Local planes refined the pose.
+    Applied,
+    /// The source lay on the target's own points and was snapped onto them.
+    Snapped,
+    /// It moved the source further than `polish.max_shift`; the SDF's pose was kept.
+    Undone,
+}
+
+/// The polish.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PolishReport {
+    /// What it did.
+    pub result: PolishResult,
+    /// Gauss–Newton iterations, all passes.
+    pub iterations: usize,
+    /// Why the pass that set the pose stopped.
+    pub stop_reason: StopReason,
+    /// How far it moved the source (zero when off or undone).
+    pub change: PoseChange,
+}
+
+/// The translation search ([`crate::ShiftSearchSettings`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ShiftSearchReport {
+    /// Peaks of the occupancy correlation polished and scored.
+    pub peaks: usize,
+    /// Whether one replaced the pose.
+    pub taken: bool,
+    /// Fitness gained by it (0 when none was taken).
+    pub fitness_gain: f64,
+    /// How far it moved the source.
+    pub change: PoseChange,
+}
+
+/// Whether the robust kernel ran, and why ([`crate::RobustMode`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+#[non_exhaustive]
+pub enum RobustReport {
+    /// Least squares only (`RobustMode::Off`).
+    Off,
+    /// The kernel from the start (`RobustMode::On` or `Fixed`).
+    FromStart,
+    /// Least squares fitted well enough; no re-run.
+    NotNeeded {
+        /// The least-squares fitness.
+        least_squares_fitness: f64,
+        /// The share of the source the least-squares result left outside the target's
+        /// coverage (beyond [`crate::OUTSIDE_SPACINGS`] target spacings).
+        least_squares_outside: f64,
+    },
+    /// The robust re-run fitted enough better and was returned.
+    RerunKept {
+        /// The least-squares fitness.
+        least_squares_fitness: f64,
+        /// The share of the source outside the target's coverage at least squares.
+        least_squares_outside: f64,
+        /// The robust run's fitness.
+        robust_fitness: f64,
+    },
+    /// The robust re-run did not fit enough better; the least-squares result was returned.
+    RerunRejected {
+        /// The least-squares fitness.
+        least_squares_fitness: f64,
+        /// The share of the source outside the target's coverage at least squares.
+        least_squares_outside: f64,
+        /// The robust run's fitness.
+        robust_fitness: f64,
+    },
+}
+
+/// What each stage of the returned run did, in pipeline order.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Stages {
+    /// The initial pose (multi-start or the caller's guess).
+    pub initial: InitialReport,
+    /// The coarse-to-fine alternations.
+    pub coarse_to_fine: CoarseToFineReport,
+    /// The final LM.
+    pub final_lm: FinalLmReport,
+    /// The robust re-run decision.
+    pub robust: RobustReport,
+    /// The polish.
+    pub polish: PolishReport,
+    /// The shift search.
+    pub shift_search: ShiftSearchReport,
+}
+
+/// Progress reported while registering.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
+pub enum Stage {
+    /// Pre-fitting the SDF (Adam steps done, total).
+    Prefit(usize, usize),
+    /// Multi-start over initial rotations.
+    Multistart,
+    /// Coarse-to-fine alternation (done, total).
+    Alternation(usize, usize),
+    /// Final LM on the frozen SDF.
+    Final,
+}

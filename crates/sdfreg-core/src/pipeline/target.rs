@@ -1,0 +1,41 @@
+//! Stages 1–2 for the target: its unit frame and the pre-fit of Φ, shared by
+//! [`crate::register()`] and [`crate::SdfModel::fit`].
+
+use nalgebra::Point3;
+use rand_chacha::ChaCha8Rng;
+
+use crate::base::error::Error;
+use crate::fit::fitter::SdfFitter;
+use crate::geometry::cloud::{subsample, Normalization};
+use crate::pipeline::report::Stage;
+use crate::pipeline::settings::RegisterSettings;
+
+/// Salt of the SDF fit's seed (its random stream differs from the registration's).
+pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
+
+/// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
+/// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps,
+/// reporting [`Stage::Prefit`] to `progress`.
+pub(crate) fn prefit(
+    target: &[Point3<f64>],
+    s: &RegisterSettings,
+    rng: &mut ChaCha8Rng,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<(Normalization, SdfFitter), Error> {
+    let norm = Normalization::from_target(target)?;
+    let unit: Vec<[f32; 3]> = subsample(target, s.max_target_points, rng)
+        .iter()
+        .map(|p| norm.to_unit(p))
+        .collect();
+    let mut fitter = SdfFitter::new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT);
+    let total = s.fit.prefit_steps;
+    let chunk = 50.max(total / 10);
+    let mut done = 0;
+    while done < total {
+        let n = chunk.min(total - done);
+        fitter.train(n, s.fit.prefit_lr);
+        done += n;
+        progress(Stage::Prefit(done, total));
+    }
+    Ok((norm, fitter))
+}

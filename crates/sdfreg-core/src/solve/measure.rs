@@ -1,0 +1,74 @@
+//! Quality of a pose against the target: fitness, inlier RMS, the 6×6 information matrix, the
+//! final cost and the motions the data leave free ([`crate::solve::degeneracy`]).
+//!
+//! Entry points: [`inlier_stats`], [`quality`].
+
+use kiddo::SquaredEuclidean;
+use nalgebra::{Matrix6, Vector3};
+use rayon::prelude::*;
+
+use crate::field::Field;
+use crate::geometry::cloud::Normalization;
+use crate::geometry::tree::Tree;
+use crate::solve::degeneracy::Degeneracy;
+use crate::solve::lm::jacobian_row;
+
+/// Fitness — the fraction of the (already moved) `points` within `sqrt(thr2)` of a target
+/// point — and the RMS distance of those inliers, normalised units.
+pub(crate) fn inlier_stats(tree: &Tree, points: &[[f32; 3]], thr2: f64) -> (f64, f64) {
+    let thr2 = thr2 as f32;
+    let d2: Vec<f32> = points
+        .par_iter()
+        .map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance)
+        .collect();
+    let inliers: Vec<f64> = d2
+        .iter()
+        .filter(|&&d| d <= thr2)
+        .map(|&d| d as f64)
+        .collect();
+    let fitness = inliers.len() as f64 / points.len().max(1) as f64;
+    let rms = if inliers.is_empty() {
+        0.0
+    } else {
+        (inliers.iter().sum::<f64>() / inliers.len() as f64).sqrt()
+    };
+    (fitness, rms)
+}
+
+/// Figures of the moved source against Φ, in the user's frame.
+pub(crate) struct Quality {
+    /// `JᵀJ` at the pose, twist `[ω; v]` about the target origin, user units.
+    pub information: Matrix6<f64>,
+    /// Mean squared Φ, user units².
+    pub cost: f64,
+    /// The motions the data leave free.
+    pub degeneracy: Degeneracy,
+}
+
+/// [`Quality`] of the unit-frame `moved` source points against `phi`.
+pub(crate) fn quality<F: Field + ?Sized>(
+    field: &F,
+    moved: &[[f32; 3]],
+    norm: &Normalization,
+    ratio: f64,
+) -> Quality {
+    let (phi, grads) = field.eval_points(moved, true);
+    let mut information = Matrix6::zeros();
+    let mut cost = 0.0;
+    let mut moved_user = Vec::with_capacity(moved.len());
+    let mut normals = Vec::with_capacity(moved.len());
+    for ((x, g), r) in moved.iter().zip(&grads).zip(&phi) {
+        let xu = norm.to_user(&Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64));
+        let n = Vector3::new(g[0] as f64, g[1] as f64, g[2] as f64);
+        let j = jacobian_row(&xu.coords, &n);
+        information += j * j.transpose();
+        cost += (*r as f64 * norm.scale).powi(2);
+        moved_user.push(xu);
+        normals.push(n);
+    }
+    Quality {
+        information,
+        cost: cost / moved.len() as f64,
+        degeneracy: Degeneracy::analyse(&moved_user, &normals, ratio),
+    }
+}
