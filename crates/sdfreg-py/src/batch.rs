@@ -14,7 +14,7 @@ use pyo3::types::{PyDict, PyList, PyTuple};
 use sdfreg_core::{register_each, Pair, PairTarget, Registration};
 
 use crate::registration::PyRegistration;
-use crate::settings::SettingsArgs;
+use crate::settings::{Caller, SettingsArgs};
 use crate::{convert, error, Target};
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
@@ -51,9 +51,9 @@ pub fn register_many<'py>(
     progress: Option<&Bound<'py, PyAny>>,
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyList>> {
-    let mut args = SettingsArgs::from_kwargs("register_many", settings)?;
+    let mut args = SettingsArgs::from_kwargs(Caller::RegisterMany, settings)?;
     args.threads = 1;
-    let settings = args.build()?;
+    let settings = args.build("default")?;
     let threads: usize = crate::settings::IntoSetting::into_setting(threads, "threads")?;
     let prepared: Vec<Result<Prepared, PyErr>> = pairs
         .try_iter()?

@@ -22,13 +22,14 @@ use std::path::PathBuf;
 
 use numpy::PyArray2;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use mesh_model::PyMeshModel;
 use model::PySdfModel;
 use registration::{PyFreeMotion, PyRegistration};
 use settings::{
-    PyCoarseToFineSettings, PyFitSettings, PyLmSettings, PyMlpSettings, PyMultistartSettings,
-    PyPolishSettings, PyRobustSettings, PyShiftSearchSettings, SettingsArgs,
+    Caller, PyCoarseToFineSettings, PyFitSettings, PyLmSettings, PyMlpSettings,
+    PyMultistartSettings, PyPolishSettings, PyRobustSettings, PyShiftSearchSettings, SettingsArgs,
 };
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
@@ -89,30 +90,14 @@ use settings::{
 ///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
 ///         setting is out of range.
 #[pyfunction]
-#[pyo3(signature = (source, target, *, init = None, refine = None, preset = None, robust = None, seed = 0, threads = 0, max_source_points = None, max_target_points = None, inlier_distance = None, free_motion_ratio = None, mlp = None, fit = None, multistart = None, coarse_to_fine = None, lm = None, polish = None, shift_search = None, model = None))]
-#[allow(clippy::too_many_arguments)]
-fn register(
-    py: Python<'_>,
-    source: &Bound<'_, PyAny>,
-    target: &Bound<'_, PyAny>,
-    init: Option<&Bound<'_, PyAny>>,
+#[pyo3(signature = (source, target, *, init = None, refine = None, **settings))]
+fn register<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
+    init: Option<&Bound<'py, PyAny>>,
     refine: Option<bool>,
-    preset: Option<&str>,
-    robust: Option<&Bound<'_, PyAny>>,
-    seed: i64,
-    threads: i64,
-    max_source_points: Option<i64>,
-    max_target_points: Option<i64>,
-    inlier_distance: Option<f64>,
-    free_motion_ratio: Option<f64>,
-    mlp: Option<PyRef<'_, PyMlpSettings>>,
-    fit: Option<PyRef<'_, PyFitSettings>>,
-    multistart: Option<PyRef<'_, PyMultistartSettings>>,
-    coarse_to_fine: Option<PyRef<'_, PyCoarseToFineSettings>>,
-    lm: Option<PyRef<'_, PyLmSettings>>,
-    polish: Option<PyRef<'_, PyPolishSettings>>,
-    shift_search: Option<PyRef<'_, PyShiftSearchSettings>>,
-    model: Option<String>,
+    settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<PyRegistration> {
     let source = convert::points(source, "source")?;
     let target = Target::from_python(target)?;
@@ -132,25 +117,7 @@ fn register(
         (_, refine) => refine.unwrap_or(false),
     };
     let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
-    let s = SettingsArgs {
-        preset: preset.map(str::to_string),
-        robust: robust.cloned(),
-        seed,
-        threads,
-        max_source_points,
-        max_target_points,
-        inlier_distance,
-        free_motion_ratio,
-        mlp: mlp.map(|g| g.0.clone()),
-        fit: fit.map(|g| g.0.clone()),
-        multistart: multistart.map(|g| g.0.clone()),
-        coarse_to_fine: coarse_to_fine.map(|g| g.0.clone()),
-        lm: lm.map(|g| g.0.clone()),
-        polish: polish.map(|g| g.0.clone()),
-        shift_search: shift_search.map(|g| g.0.clone()),
-        model,
-    }
-    .build()?;
+    let s = SettingsArgs::from_kwargs(Caller::Register, settings)?.build("default")?;
     let result = py
         .detach(|| match &target {
             Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),
@@ -187,6 +154,16 @@ impl Target {
 #[pyfunction]
 fn _core_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     settings::core_defaults(py)
+}
+
+/// Each settings keyword of the binding and the functions that take it (for the test that
+/// holds the stubs' keyword declarations equal to [`settings::KEYWORDS`]).
+#[pyfunction]
+fn _settings_keywords() -> std::collections::BTreeMap<&'static str, Vec<&'static str>> {
+    settings::KEYWORDS
+        .iter()
+        .map(|k| (k.name, k.callers.iter().map(|c| c.name()).collect()))
+        .collect()
 }
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
@@ -257,6 +234,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(_settings_keywords, m)?)?;
     m.add_function(wrap_pyfunction!(model::fit, m)?)?;
     m.add_function(wrap_pyfunction!(model::load_model, m)?)?;
     m.add_function(wrap_pyfunction!(model::_model_from_bytes, m)?)?;

@@ -10,11 +10,11 @@ use std::sync::Arc;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
-use sdfreg_core::{RegisterSettings, SdfModel};
+use sdfreg_core::SdfModel;
 
 use crate::convert;
 use crate::error;
-use crate::settings::{IntoSetting, PyFitSettings, PyMlpSettings};
+use crate::settings::{Caller, IntoSetting, SettingsArgs};
 
 /// A mesh as numpy arrays: vertices (V, 3) and faces (F, 3).
 pub(crate) type MeshArrays<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<i64>>);
@@ -48,29 +48,14 @@ pub struct PySdfModel(pub Arc<SdfModel>);
 ///     ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
 ///         fewer than 10 points or no extent; a setting is out of range.
 #[pyfunction]
-#[pyo3(signature = (target, *, seed = 0, threads = 0, max_target_points = None, mlp = None, fit = None, model = None))]
-#[allow(clippy::too_many_arguments)]
-pub fn fit(
-    py: Python<'_>,
-    target: &Bound<'_, PyAny>,
-    seed: i64,
-    threads: i64,
-    max_target_points: Option<i64>,
-    mlp: Option<PyRef<'_, PyMlpSettings>>,
-    fit: Option<PyRef<'_, PyFitSettings>>,
-    model: Option<String>,
+#[pyo3(signature = (target, **settings))]
+pub fn fit<'py>(
+    py: Python<'py>,
+    target: &Bound<'py, PyAny>,
+    settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<PySdfModel> {
     let target = convert::points(target, "target")?;
-    let s = crate::settings::SettingsArgs {
-        seed,
-        threads,
-        max_target_points,
-        mlp: mlp.map(|g| g.0.clone()),
-        fit: fit.map(|g| g.0.clone()),
-        model,
-        ..Default::default()
-    }
-    .build()?;
+    let s = SettingsArgs::from_kwargs(Caller::Fit, settings)?.build("default")?;
     let model = py
         .detach(|| SdfModel::fit(&target, &s))
         .map_err(error::registration)?;
@@ -172,19 +157,15 @@ impl PySdfModel {
     /// frame's pose, with the ``"tracking"`` preset (no multi-start, a few LM steps, a short
     /// polish) and these overrides. Returns one :class:`Registration` per frame, or the
     /// ``ValueError`` of a frame that could not be registered, in its place.
-    #[pyo3(signature = (frames, *, init = None, seed = 0, threads = 0, max_source_points = None, lm = None, polish = None))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (frames, *, init = None, **settings))]
     fn track<'py>(
         &self,
         py: Python<'py>,
         frames: &Bound<'py, PyAny>,
         init: Option<&Bound<'py, PyAny>>,
-        seed: i64,
-        threads: i64,
-        max_source_points: Option<i64>,
-        lm: Option<PyRef<'py, crate::settings::PyLmSettings>>,
-        polish: Option<PyRef<'py, crate::settings::PyPolishSettings>>,
+        settings: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Vec<Bound<'py, PyAny>>> {
+        let s = SettingsArgs::from_kwargs(Caller::Track, settings)?.build("tracking")?;
         let clouds: Vec<Vec<nalgebra::Point3<f64>>> = frames
             .try_iter()?
             .enumerate()
@@ -194,14 +175,6 @@ impl PySdfModel {
             .map(|m| convert::isometry(m, "init"))
             .transpose()?
             .unwrap_or_else(nalgebra::Isometry3::identity);
-        let mut s = RegisterSettings::tracking();
-        s.seed = seed.into_setting("seed")?;
-        s.threads = threads.into_setting("threads")?;
-        if let Some(n) = max_source_points {
-            s.max_source_points = n.into_setting("max_source_points")?;
-        }
-        s.lm = lm.as_ref().map_or(s.lm, |g| g.0.clone());
-        s.polish = polish.as_ref().map_or(s.polish, |g| g.0.clone());
         let model = self.0.clone();
         let results = py
             .detach(move || {

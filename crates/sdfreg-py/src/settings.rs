@@ -121,6 +121,13 @@ macro_rules! settings_class {
         #[derive(Clone, PartialEq)]
         pub struct $py(pub sdfreg_core::$core);
 
+        impl Group for $py {
+            type Core = sdfreg_core::$core;
+            fn core(&self) -> &sdfreg_core::$core {
+                &self.0
+            }
+        }
+
         impl $py {
             fn check(s: &sdfreg_core::$core) -> PyResult<()> {
                 s.validate().map_err(error::registration)
@@ -609,8 +616,186 @@ pub fn core_defaults(py: Python<'_>) -> PyResult<Bound<'_, PyAny>> {
     py.import("json")?.call_method1("loads", (json,))
 }
 
-/// The settings keywords of `register` and `register_many`, before they are applied to the
-/// preset: each `None` keeps the preset's value.
+/// The functions that take settings keywords. `SdfModel.register` and `MeshModel.register`
+/// forward to `register`, so they take its keywords.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Caller {
+    /// `register(source, target, *, init, refine, **settings)`.
+    Register,
+    /// `register_many(pairs, *, threads, progress, **settings)` (threads is its own argument).
+    RegisterMany,
+    /// `SdfModel.track(frames, *, init, **settings)`, from the `"tracking"` preset.
+    Track,
+    /// `fit(target, **settings)`: the keywords of the target's fit.
+    Fit,
+}
+
+impl Caller {
+    /// The function's name, as Python errors give it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Caller::Register => "register",
+            Caller::RegisterMany => "register_many",
+            Caller::Track => "track",
+            Caller::Fit => "fit",
+        }
+    }
+}
+
+/// One settings keyword: its name, which functions take it, and where its value goes.
+pub struct Keyword {
+    /// The keyword.
+    pub name: &'static str,
+    /// The functions that take it.
+    pub callers: &'static [Caller],
+    /// Stores a value (not None) in the arguments; a wrong type is a `TypeError`.
+    set: for<'py> fn(&mut SettingsArgs<'py>, &Bound<'py, PyAny>) -> PyResult<()>,
+}
+
+use Caller::{Fit, Register, RegisterMany, Track};
+const ALL: &[Caller] = &[Register, RegisterMany, Track, Fit];
+const REGISTER: &[Caller] = &[Register, RegisterMany];
+const SOURCE: &[Caller] = &[Register, RegisterMany, Track];
+const TARGET: &[Caller] = &[Register, RegisterMany, Fit];
+const ONE_CALL: &[Caller] = &[Register, Track, Fit];
+
+/// The settings keywords, declared once for `register`, `register_many`, `SdfModel.register`,
+/// `MeshModel.register`, `SdfModel.track` and `fit` (the stubs' `_RegisterKeywords` and its
+/// relatives in `_sdfreg.pyi` list the same names, a test holds them equal). Each is applied
+/// to the preset by [`SettingsArgs::build`]; None keeps the preset's value.
+pub const KEYWORDS: &[Keyword] = &[
+    Keyword {
+        name: "preset",
+        callers: REGISTER,
+        set: |a, v| {
+            a.preset = Some(v.extract()?);
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "robust",
+        callers: REGISTER,
+        set: |a, v| {
+            a.robust = Some(v.clone());
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "seed",
+        callers: ALL,
+        set: |a, v| {
+            a.seed = v.extract()?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "threads",
+        callers: ONE_CALL,
+        set: |a, v| {
+            a.threads = v.extract()?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "max_source_points",
+        callers: SOURCE,
+        set: |a, v| {
+            a.max_source_points = Some(v.extract()?);
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "max_target_points",
+        callers: TARGET,
+        set: |a, v| {
+            a.max_target_points = Some(v.extract()?);
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "inlier_distance",
+        callers: REGISTER,
+        set: |a, v| {
+            a.inlier_distance = Some(v.extract()?);
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "free_motion_ratio",
+        callers: REGISTER,
+        set: |a, v| {
+            a.free_motion_ratio = Some(v.extract()?);
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "mlp",
+        callers: TARGET,
+        set: |a, v| {
+            a.mlp = group::<PyMlpSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "fit",
+        callers: TARGET,
+        set: |a, v| {
+            a.fit = group::<PyFitSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "multistart",
+        callers: REGISTER,
+        set: |a, v| {
+            a.multistart = group::<PyMultistartSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "coarse_to_fine",
+        callers: REGISTER,
+        set: |a, v| {
+            a.coarse_to_fine = group::<PyCoarseToFineSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "lm",
+        callers: SOURCE,
+        set: |a, v| {
+            a.lm = group::<PyLmSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "polish",
+        callers: SOURCE,
+        set: |a, v| {
+            a.polish = group::<PyPolishSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "shift_search",
+        callers: REGISTER,
+        set: |a, v| {
+            a.shift_search = group::<PyShiftSearchSettings>(v)?;
+            Ok(())
+        },
+    },
+    Keyword {
+        name: "model",
+        callers: TARGET,
+        set: |a, v| {
+            a.model = Some(v.extract()?);
+            Ok(())
+        },
+    },
+];
+
+/// The settings keywords of a call, before they are applied to the preset: each `None` keeps
+/// the preset's value.
 #[derive(Default)]
 pub struct SettingsArgs<'py> {
     pub preset: Option<String>,
@@ -632,52 +817,42 @@ pub struct SettingsArgs<'py> {
 }
 
 impl<'py> SettingsArgs<'py> {
-    /// The settings keywords of `kwargs` (`register_many(pairs, **settings)`); a keyword that
-    /// names no setting is a `TypeError`, as Python raises for any function.
-    pub fn from_kwargs(function: &str, kwargs: Option<&Bound<'py, PyDict>>) -> PyResult<Self> {
+    /// The settings keywords of `kwargs` for `caller` ([`KEYWORDS`]); a keyword the function
+    /// does not take is a `TypeError`, as Python raises for any function, and so is a value of
+    /// the wrong type (naming the keyword). None keeps the preset's value.
+    pub fn from_kwargs(caller: Caller, kwargs: Option<&Bound<'py, PyDict>>) -> PyResult<Self> {
         let mut a = SettingsArgs::default();
         let Some(kwargs) = kwargs else {
             return Ok(a);
         };
         for (key, value) in kwargs.iter() {
             let key: String = key.extract()?;
-            let none = value.is_none();
-            match key.as_str() {
-                "preset" => a.preset = value.extract()?,
-                "robust" => a.robust = (!none).then(|| value.clone()),
-                "seed" => a.seed = value.extract()?,
-                "max_source_points" => a.max_source_points = value.extract()?,
-                "max_target_points" => a.max_target_points = value.extract()?,
-                "inlier_distance" => a.inlier_distance = value.extract()?,
-                "free_motion_ratio" => a.free_motion_ratio = value.extract()?,
-                "mlp" => a.mlp = group::<PyMlpSettings, _>(&value, |g| g.0.clone())?,
-                "fit" => a.fit = group::<PyFitSettings, _>(&value, |g| g.0.clone())?,
-                "model" => a.model = value.extract()?,
-                "multistart" => {
-                    a.multistart = group::<PyMultistartSettings, _>(&value, |g| g.0.clone())?
-                }
-                "coarse_to_fine" => {
-                    a.coarse_to_fine = group::<PyCoarseToFineSettings, _>(&value, |g| g.0.clone())?
-                }
-                "lm" => a.lm = group::<PyLmSettings, _>(&value, |g| g.0.clone())?,
-                "polish" => a.polish = group::<PyPolishSettings, _>(&value, |g| g.0.clone())?,
-                "shift_search" => {
-                    a.shift_search = group::<PyShiftSearchSettings, _>(&value, |g| g.0.clone())?
-                }
-                _ => {
-                    return Err(pyo3::exceptions::PyTypeError::new_err(format!(
-                        "{function}() got an unexpected keyword argument '{key}'"
-                    )))
-                }
+            let keyword = KEYWORDS
+                .iter()
+                .find(|k| k.name == key && k.callers.contains(&caller))
+                .ok_or_else(|| {
+                    pyo3::exceptions::PyTypeError::new_err(format!(
+                        "{}() got an unexpected keyword argument '{key}'",
+                        caller.name()
+                    ))
+                })?;
+            if value.is_none() {
+                continue;
             }
+            (keyword.set)(&mut a, &value).map_err(|e| {
+                pyo3::exceptions::PyTypeError::new_err(format!(
+                    "argument '{key}': {}",
+                    e.value(value.py())
+                ))
+            })?;
         }
         Ok(a)
     }
 
-    /// The preset named (default: `"default"`) with every given keyword applied; a
+    /// The preset named (default: `default_preset`) with every given keyword applied; a
     /// `ValueError` names a bad preset or value.
-    pub fn build(self) -> PyResult<RegisterSettings> {
-        let preset = self.preset.as_deref().unwrap_or("default");
+    pub fn build(self, default_preset: &str) -> PyResult<RegisterSettings> {
+        let preset = self.preset.as_deref().unwrap_or(default_preset);
         let mut s = RegisterSettings::preset(preset).ok_or_else(|| {
             error::argument(
                 "preset",
@@ -722,14 +897,12 @@ impl<'py> SettingsArgs<'py> {
     }
 }
 
-/// A settings-group keyword: an instance of its class `G`, or None.
-fn group<'py, G, T>(value: &Bound<'py, PyAny>, take: impl Fn(&G) -> T) -> PyResult<Option<T>>
+/// A settings-group keyword's value: an instance of its class `G` (None is handled by the
+/// caller).
+fn group<G>(value: &Bound<'_, PyAny>) -> PyResult<Option<G::Core>>
 where
-    G: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync,
+    G: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync + Group,
 {
-    if value.is_none() {
-        return Ok(None);
-    }
     let g = value.cast::<G>().map_err(|_| {
         pyo3::exceptions::PyTypeError::new_err(format!(
             "expected a {} or None, got {}",
@@ -740,5 +913,13 @@ where
                 .map_or("?".into(), |n| n.to_string())
         ))
     })?;
-    Ok(Some(take(g.get())))
+    Ok(Some(g.get().core().clone()))
+}
+
+/// A settings class wrapping its core settings group.
+pub trait Group {
+    /// The core's settings group.
+    type Core: Clone;
+    /// The wrapped group.
+    fn core(&self) -> &Self::Core;
 }

@@ -111,6 +111,21 @@ fn query_loss(
     (d2, w * d2 + we * e * e, -2.0 * w * dn, dg)
 }
 
+/// What one Adam step reads: the queries with their weights, the surface points, and the
+/// loss weights.
+struct Batch {
+    queries: Vec<Query>,
+    surface: Vec<[f32; 3]>,
+    /// The perturbation queries fill the first `nq` places of `queries`.
+    nq: usize,
+    /// Weight of a perturbation query's projection loss.
+    wq: f32,
+    /// Weight of each query's Eikonal term.
+    we: f32,
+    /// Weight of each surface point's |Φ|.
+    wsurf: f32,
+}
+
 impl SdfFitter {
     /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool.
     /// `target` must hold at least 2 points.
@@ -315,6 +330,15 @@ impl SdfFitter {
     }
 
     fn step(&mut self, lr: f32) -> FitLoss {
+        let batch = self.draw_batch();
+        let parts = self.block_losses(&batch);
+        self.apply(parts, lr)
+    }
+
+    /// The queries and surface points of one Adam step, drawn from the fit's random stream:
+    /// perturbation queries, then moved-source queries, then surface points, then a local
+    /// model's queries.
+    fn draw_batch(&mut self) -> Batch {
         let st = &self.settings;
         let (nq, ns) = if self.source_queries.is_empty() {
             (st.batch_queries, 0)
@@ -346,6 +370,27 @@ impl SdfFitter {
         }
         let we = st.lambda_eikonal / queries.len().max(1) as f32;
         let wsurf = st.lambda_surface / nt.max(1) as f32;
+        Batch {
+            queries,
+            surface,
+            nq,
+            wq,
+            we,
+            wsurf,
+        }
+    }
+
+    /// Each block's loss and projection loss, its parameter gradient left in its scratch (and
+    /// its local part's `(slot, ∂L/∂θ)`): one task per block, in block order.
+    fn block_losses(&mut self, batch: &Batch) -> Vec<(f64, f64)> {
+        let Batch {
+            ref queries,
+            ref surface,
+            nq,
+            wq,
+            we,
+            wsurf,
+        } = *batch;
         let field = &self.field;
         let mlp = field.mlp();
         let n_params = mlp.num_params();
@@ -359,7 +404,7 @@ impl SdfFitter {
             self.scratch
                 .resize_with(tasks, || (mlp.workspace(), vec![0.0; n_params], Vec::new()));
         }
-        let parts: Vec<(f64, f64)> = self.scratch[..tasks]
+        self.scratch[..tasks]
             .par_iter_mut()
             .enumerate()
             .map(|(i, (ws, grad, local_grad))| {
@@ -405,7 +450,13 @@ impl SdfFitter {
                     (total, 0.0)
                 }
             })
-            .collect();
+            .collect()
+    }
+
+    /// Sums the blocks' losses and gradients in block order (so the step does not depend on
+    /// the number of threads) and takes the Adam step at `lr`.
+    fn apply(&mut self, parts: Vec<(f64, f64)>, lr: f32) -> FitLoss {
+        let n_params = self.field.mlp().num_params();
         let mut grad = vec![0.0f32; n_params];
         let mut theta_grad = vec![0.0f32; self.field.theta().len()];
         let mut loss = FitLoss::default();

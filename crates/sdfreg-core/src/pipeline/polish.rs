@@ -289,13 +289,51 @@ pub(crate) fn polish(
         }
         None => s,
     };
+    let target = Target {
+        points: target,
+        tree,
+        planes,
+        spacing,
+    };
+    let mut out = plane_passes(source, &target, start, s);
+    if s.iterations > 0 && s.snap && worth_snapping(source, &target, &out.pose) {
+        snap(source, &target, s, &mut out);
+    }
+    undo_if_far(source, start, s.max_shift, out)
+}
+
+/// The target as the polish reads it.
+struct Target<'a> {
+    /// Target points, unit frame, and their k-d tree.
+    points: &'a [[f32; 3]],
+    tree: &'a Tree,
+    /// A scene's planes at the target's points ([`TargetPlanes`]), else planes at the moved
+    /// source points.
+    planes: Option<&'a TargetPlanes>,
+    /// The target's median point spacing.
+    spacing: f64,
+}
+
+/// Robust point-to-plane passes from `start`: local planes with every point within
+/// `max_distance`, then (when narrower) within the gate of `near_spacings` target spacings.
+fn plane_passes(
+    source: &[Point3<f64>],
+    target: &Target<'_>,
+    start: Isometry3<f64>,
+    s: &PolishSettings,
+) -> PolishOutcome {
+    let Target {
+        points,
+        tree,
+        planes,
+        spacing,
+    } = *target;
     let gate = if s.near_spacings > 0.0 {
         (s.near_spacings * spacing).min(s.max_distance)
     } else {
         s.max_distance
     };
     let k = s.neighbours;
-    // Local planes with every point within max_distance, then (when narrower) within the gate.
     let mut gates = vec![s.max_distance];
     if gate < s.max_distance {
         gates.push(gate);
@@ -311,72 +349,94 @@ pub(crate) fn polish(
                 s,
                 Residuals::Planes,
                 |x, cache| match planes {
-                    Some(planes) => planes.residual(target, tree, x, d2, cache),
-                    None => local_plane(target, tree, x, k, d2, cache),
+                    Some(planes) => planes.residual(points, tree, x, d2, cache),
+                    None => local_plane(points, tree, x, k, d2, cache),
                 },
             );
         (pose, stop_reason, last_step) = (p, stop, last);
         iterations += n;
     }
-    // Snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
-    // the nearest target point (normal from its neighbours) lay it exactly onto those points.
-    // Tried always; kept only when it got there: the source points' median distance to the
-    // nearest target point below SNAP_RATIO × the target's median spacing. On independent
-    // samples or noise it never does (the local planes' result stands).
-    let mut snapped = false;
-    // Against a scene's planes the snap is tried only when the source already lies near the
-    // target's own points: a scan is never a copy of another, and the snap's iterations cost as
-    // much as a pass.
-    let worth_snapping = || {
-        planes.is_none() || {
-            let moved = source.iter().map(|p| {
-                let x = pose * p;
-                [x.x as f32, x.y as f32, x.z as f32]
-            });
-            median_nn(moved, tree, false) < SNAP_TRY_RATIO * spacing
-        }
-    };
-    if s.iterations > 0 && s.snap && worth_snapping() {
-        let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
-            (0..target.len()).map(|_| OnceLock::new()).collect();
-        let (candidate, n, stop, last) =
-            gauss_newton(source, pose, s, Residuals::Points, |x, _: &mut ()| {
-                let nn =
-                    tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
-                if nn.distance as f64 > s.max_distance * s.max_distance {
-                    return None;
-                }
-                let i = nn.item as usize;
-                let n = (*normals[i].get_or_init(|| point_normal(target, tree, i, k)))?;
-                let q = target[i];
-                Some((
-                    n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
-                    n,
-                ))
-            });
-        iterations += n;
-        let on_target = source.iter().map(|p| {
-            let x = candidate * p;
-            [x.x as f32, x.y as f32, x.z as f32]
-        });
-        if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
-            (pose, stop_reason, last_step) = (candidate, stop, last);
-            snapped = true;
-        }
-    }
-    let shift2 = source
-        .iter()
-        .map(|p| (pose * p - start * p).norm_squared())
-        .sum::<f64>()
-        / source.len().max(1) as f64;
-    let undone = shift2.sqrt() > s.max_shift;
     PolishOutcome {
-        pose: if undone { start } else { pose },
+        pose,
         iterations,
         stop_reason,
         last_step,
-        snapped,
+        snapped: false,
+        undone: false,
+    }
+}
+
+/// Whether the snap is worth trying from `pose`: always against planes at the source points;
+/// against a scene's planes only when the source already lies near the target's own points (a
+/// scan is never a copy of another, and the snap's iterations cost as much as a pass).
+fn worth_snapping(source: &[Point3<f64>], target: &Target<'_>, pose: &Isometry3<f64>) -> bool {
+    target.planes.is_none() || {
+        let moved = source.iter().map(|p| {
+            let x = pose * p;
+            [x.x as f32, x.y as f32, x.z as f32]
+        });
+        median_nn(moved, target.tree, false) < SNAP_TRY_RATIO * target.spacing
+    }
+}
+
+/// The snap: when the source is a copy or a subset of the target cloud, point-to-plane steps on
+/// the nearest target point (normal from its neighbours) lay it exactly onto those points. Kept
+/// in `out` only when it got there: the source points' median distance to the nearest target
+/// point below [`SNAP_RATIO`] × the target's median spacing. On independent samples or noise it
+/// never does (the local planes' result stands).
+fn snap(source: &[Point3<f64>], target: &Target<'_>, s: &PolishSettings, out: &mut PolishOutcome) {
+    let Target {
+        points,
+        tree,
+        spacing,
+        ..
+    } = *target;
+    let k = s.neighbours;
+    let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
+        (0..points.len()).map(|_| OnceLock::new()).collect();
+    let (candidate, n, stop, last) =
+        gauss_newton(source, out.pose, s, Residuals::Points, |x, _: &mut ()| {
+            let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+            if nn.distance as f64 > s.max_distance * s.max_distance {
+                return None;
+            }
+            let i = nn.item as usize;
+            let n = (*normals[i].get_or_init(|| point_normal(points, tree, i, k)))?;
+            let q = points[i];
+            Some((
+                n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
+                n,
+            ))
+        });
+    out.iterations += n;
+    let on_target = source.iter().map(|p| {
+        let x = candidate * p;
+        [x.x as f32, x.y as f32, x.z as f32]
+    });
+    if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
+        (out.pose, out.stop_reason, out.last_step) = (candidate, stop, last);
+        out.snapped = true;
+    }
+}
+
+/// `out`, undone (back at `start`) when it moved the source points by more than `max_shift`
+/// (RMS) from `start`.
+fn undo_if_far(
+    source: &[Point3<f64>],
+    start: Isometry3<f64>,
+    max_shift: f64,
+    out: PolishOutcome,
+) -> PolishOutcome {
+    let shift2 = source
+        .iter()
+        .map(|p| (out.pose * p - start * p).norm_squared())
+        .sum::<f64>()
+        / source.len().max(1) as f64;
+    let undone = shift2.sqrt() > max_shift;
+    PolishOutcome {
+        pose: if undone { start } else { out.pose },
         undone,
+        ..out
     }
 }
 

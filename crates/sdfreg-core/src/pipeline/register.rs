@@ -1,4 +1,4 @@
-//! Registration: the paper's stages (Sec. 3.4) as one list, and its result.
+//! Registration: the paper's stages (Sec. 3.4) as one list; the entry points.
 //!
 //! [`register`] moves the source onto the target's neural SDF Φ in these stages, each a function
 //! of its own:
@@ -11,12 +11,12 @@
 //!    queries and LM steps (eq. 9–13) per hypothesis; keep the best ([`crate::pipeline::coarse_to_fine`]);
 //! 5. **final LM** on the frozen Φ until converged;
 //! 6. **robust re-run** when needed — [`crate::RobustMode::Auto`] redoes a poorly fitting
-//!    least-squares result with the Geman–McClure kernel ([`crate::pipeline::robust`]);
+//!    least-squares result with the Geman–McClure kernel ([`crate::pipeline::rerun`]);
 //! 7. **polish** — robust point-to-plane steps against the target points ([`crate::pipeline::polish`]);
 //! 8. **shift search** — translations that lay clearly more source points onto the target, each
 //!    polished, kept on a fitness gain ([`crate::pipeline::shift_search`]);
 //! 9. **measure** — fitness, inlier RMSE, JᵀJ and the free motions, in the user's frame
-//!    ([`crate::solve::degeneracy`]).
+//!    ([`crate::pipeline::registration`], [`crate::solve::degeneracy`]).
 //!
 //! [`Registration::stages`] records what each stage did.
 //!

@@ -14,6 +14,8 @@ from typing import (
     final,
 )
 
+from typing_extensions import TypedDict, Unpack
+
 import numpy as np
 import numpy.typing as npt
 
@@ -36,6 +38,7 @@ __all__ = [
     "_model_from_bytes",
     "_registration_from_json",
     "_settings_from_json",
+    "_settings_keywords",
     "fit",
     "load_model",
     "mesh_model",
@@ -421,28 +424,62 @@ class Registration:
         """Wall time of the registration, seconds."""
     def __reduce__(self) -> Any: ...
 
+
+# The settings keywords, each declared once (the binding's table `KEYWORDS` in
+# crates/sdfreg-py/src/settings.rs lists the same names per function; tests/test_stubs.py holds
+# the two equal). None, or leaving a keyword out, keeps the preset's value; the functions'
+# docstrings say what each one means.
+class _SeedKeyword(TypedDict, total=False):
+    seed: int
+
+class _ThreadsKeyword(TypedDict, total=False):
+    threads: int
+
+class _SourceKeywords(TypedDict, total=False):
+    max_source_points: Optional[int]
+    lm: Optional[LmSettings]
+    polish: Optional[PolishSettings]
+
+class _TargetKeywords(TypedDict, total=False):
+    max_target_points: Optional[int]
+    mlp: Optional[MlpSettings]
+    fit: Optional[FitSettings]
+    model: Optional[str]
+
+class _PipelineKeywords(TypedDict, total=False):
+    preset: Optional[str]
+    robust: Union[str, RobustSettings, None]
+    inlier_distance: Optional[float]
+    free_motion_ratio: Optional[float]
+    multistart: Optional[MultistartSettings]
+    coarse_to_fine: Optional[CoarseToFineSettings]
+    shift_search: Optional[ShiftSearchSettings]
+
+class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, total=False):
+    """``register_many``'s settings (its ``threads`` is an argument of its own)."""
+
+class _RegisterKeywords(_ManyKeywords, _ThreadsKeyword, total=False):
+    """``register``'s and ``SdfModel.register``'s settings."""
+
+class _MeshKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, _PipelineKeywords, total=False):
+    """``MeshModel.register``'s settings (nothing is fitted to a mesh)."""
+
+class _TrackKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, total=False):
+    """``SdfModel.track``'s settings, over the ``"tracking"`` preset."""
+
+class _FitKeywords(_SeedKeyword, _ThreadsKeyword, _TargetKeywords, total=False):
+    """``fit``'s settings."""
+
+def _settings_keywords() -> Dict[str, List[str]]:
+    """Each settings keyword of the binding and the functions that take it (for the tests)."""
+
 def register(
     source: Union[npt.ArrayLike, _HasPoints],
     target: Union[npt.ArrayLike, _HasPoints, SdfModel, MeshModel],
     *,
     init: Optional[npt.ArrayLike] = None,
     refine: Optional[bool] = None,
-    preset: Optional[str] = None,
-    robust: Union[str, RobustSettings, None] = None,
-    seed: int = 0,
-    threads: int = 0,
-    max_source_points: Optional[int] = None,
-    max_target_points: Optional[int] = None,
-    inlier_distance: Optional[float] = None,
-    free_motion_ratio: Optional[float] = None,
-    mlp: Optional[MlpSettings] = None,
-    fit: Optional[FitSettings] = None,
-    multistart: Optional[MultistartSettings] = None,
-    coarse_to_fine: Optional[CoarseToFineSettings] = None,
-    lm: Optional[LmSettings] = None,
-    polish: Optional[PolishSettings] = None,
-    shift_search: Optional[ShiftSearchSettings] = None,
-    model: Optional[str] = None,
+    **settings: Unpack[_RegisterKeywords],
 ) -> Registration:
     """Registers ``source`` onto ``target``: finds the rigid transform that moves the source
     cloud onto the target's surface, without point correspondences.
@@ -519,21 +556,7 @@ def register_many(
     *,
     threads: int = 0,
     progress: Union[bool, Callable[[int, int], object]] = False,
-    preset: Optional[str] = None,
-    robust: Union[str, RobustSettings, None] = None,
-    seed: int = 0,
-    max_source_points: Optional[int] = None,
-    max_target_points: Optional[int] = None,
-    inlier_distance: Optional[float] = None,
-    free_motion_ratio: Optional[float] = None,
-    mlp: Optional[MlpSettings] = None,
-    fit: Optional[FitSettings] = None,
-    multistart: Optional[MultistartSettings] = None,
-    coarse_to_fine: Optional[CoarseToFineSettings] = None,
-    lm: Optional[LmSettings] = None,
-    polish: Optional[PolishSettings] = None,
-    shift_search: Optional[ShiftSearchSettings] = None,
-    model: Optional[str] = None,
+    **settings: Unpack[_ManyKeywords],
 ) -> List[Union[Registration, Exception]]:
     """Registers many pairs at once, on every core: one pair per worker thread, each
     registration single-threaded, the GIL released while they run.
@@ -572,22 +595,7 @@ class SdfModel:
         *,
         init: Optional[npt.ArrayLike] = None,
         refine: Optional[bool] = None,
-        preset: Optional[str] = None,
-        robust: Union[str, RobustSettings, None] = None,
-        seed: int = 0,
-        threads: int = 0,
-        max_source_points: Optional[int] = None,
-        max_target_points: Optional[int] = None,
-        inlier_distance: Optional[float] = None,
-        free_motion_ratio: Optional[float] = None,
-        mlp: Optional[MlpSettings] = None,
-        fit: Optional[FitSettings] = None,
-        multistart: Optional[MultistartSettings] = None,
-        coarse_to_fine: Optional[CoarseToFineSettings] = None,
-        lm: Optional[LmSettings] = None,
-        polish: Optional[PolishSettings] = None,
-        shift_search: Optional[ShiftSearchSettings] = None,
-        model: Optional[str] = None,
+        **settings: Unpack[_RegisterKeywords],
     ) -> Registration:
         """Registers ``source`` onto this model: ``sdfreg.register(source, model, **kwargs)``
         (Φ frozen unless ``refine=True``)."""
@@ -609,11 +617,7 @@ class SdfModel:
         frames: Iterable[Union[npt.ArrayLike, _HasPoints]],
         *,
         init: Optional[npt.ArrayLike] = None,
-        seed: int = 0,
-        threads: int = 0,
-        max_source_points: Optional[int] = None,
-        lm: Optional[LmSettings] = None,
-        polish: Optional[PolishSettings] = None,
+        **settings: Unpack[_TrackKeywords],
     ) -> List[Union[Registration, ValueError]]:
         """Registers a sequence of ``frames`` ((N, 3) each) against the model, the first from
         ``init`` (4×4, frame into target; identity when None), each next one from the previous
@@ -650,13 +654,7 @@ class SdfModel:
 
 def fit(
     target: Union[npt.ArrayLike, _HasPoints],
-    *,
-    seed: int = 0,
-    threads: int = 0,
-    max_target_points: Optional[int] = None,
-    mlp: Optional[MlpSettings] = None,
-    fit: Optional[FitSettings] = None,
-    model: Optional[str] = None,
+    **settings: Unpack[_FitKeywords],
 ) -> SdfModel:
     """Fits the SDF model of ``target`` once, to register many sources against it.
 
@@ -702,18 +700,7 @@ class MeshModel:
         source: Union[npt.ArrayLike, _HasPoints],
         *,
         init: Optional[npt.ArrayLike] = None,
-        preset: Optional[str] = None,
-        robust: Union[str, RobustSettings, None] = None,
-        seed: int = 0,
-        threads: int = 0,
-        max_source_points: Optional[int] = None,
-        inlier_distance: Optional[float] = None,
-        free_motion_ratio: Optional[float] = None,
-        multistart: Optional[MultistartSettings] = None,
-        coarse_to_fine: Optional[CoarseToFineSettings] = None,
-        lm: Optional[LmSettings] = None,
-        polish: Optional[PolishSettings] = None,
-        shift_search: Optional[ShiftSearchSettings] = None,
+        **settings: Unpack[_MeshKeywords],
     ) -> Registration:
         """Registers ``source`` onto the mesh: ``sdfreg.register(source, mesh, **kwargs)``."""
     def distance(self, points: npt.ArrayLike) -> npt.NDArray[np.float64]:
