@@ -659,140 +659,48 @@ const SOURCE: &[Caller] = &[Register, RegisterMany, Track];
 const TARGET: &[Caller] = &[Register, RegisterMany, Fit];
 const ONE_CALL: &[Caller] = &[Register, Track, Fit];
 
+/// The [`KEYWORDS`] table: `name: callers, how;` stores the value of keyword `name` in the
+/// field of [`SettingsArgs`] of the same name — `value` as it is, `some` wrapped in `Some`,
+/// `object` the Python object itself (`robust` is read later), `(Class)` a settings group.
+macro_rules! keywords {
+    ($($name:ident: $callers:ident, $how:tt;)*) => {
+        &[$(Keyword {
+            name: stringify!($name),
+            callers: $callers,
+            set: |a, v| {
+                a.$name = keywords!(@ $how v);
+                Ok(())
+            },
+        },)*]
+    };
+    (@ value $v:ident) => { $v.extract()? };
+    (@ some $v:ident) => { Some($v.extract()?) };
+    (@ object $v:ident) => { Some($v.clone()) };
+    (@ ($group:ty) $v:ident) => { group::<$group>($v)? };
+}
+
 /// The settings keywords, declared once for `register`, `register_many`, `SdfModel.register`,
 /// `MeshModel.register`, `SdfModel.track` and `fit` (the stubs' `_RegisterKeywords` and its
 /// relatives in `_sdfreg.pyi` list the same names, a test holds them equal). Each is applied
 /// to the preset by [`SettingsArgs::build`]; None keeps the preset's value.
-pub const KEYWORDS: &[Keyword] = &[
-    Keyword {
-        name: "preset",
-        callers: REGISTER,
-        set: |a, v| {
-            a.preset = Some(v.extract()?);
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "robust",
-        callers: REGISTER,
-        set: |a, v| {
-            a.robust = Some(v.clone());
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "seed",
-        callers: ALL,
-        set: |a, v| {
-            a.seed = v.extract()?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "threads",
-        callers: ONE_CALL,
-        set: |a, v| {
-            a.threads = v.extract()?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "max_source_points",
-        callers: SOURCE,
-        set: |a, v| {
-            a.max_source_points = Some(v.extract()?);
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "max_target_points",
-        callers: TARGET,
-        set: |a, v| {
-            a.max_target_points = Some(v.extract()?);
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "inlier_distance",
-        callers: REGISTER,
-        set: |a, v| {
-            a.inlier_distance = Some(v.extract()?);
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "free_motion_ratio",
-        callers: REGISTER,
-        set: |a, v| {
-            a.free_motion_ratio = Some(v.extract()?);
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "mlp",
-        callers: TARGET,
-        set: |a, v| {
-            a.mlp = group::<PyMlpSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "fit",
-        callers: TARGET,
-        set: |a, v| {
-            a.fit = group::<PyFitSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "multistart",
-        callers: REGISTER,
-        set: |a, v| {
-            a.multistart = group::<PyMultistartSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "coarse_to_fine",
-        callers: REGISTER,
-        set: |a, v| {
-            a.coarse_to_fine = group::<PyCoarseToFineSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "lm",
-        callers: SOURCE,
-        set: |a, v| {
-            a.lm = group::<PyLmSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "polish",
-        callers: SOURCE,
-        set: |a, v| {
-            a.polish = group::<PyPolishSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "shift_search",
-        callers: REGISTER,
-        set: |a, v| {
-            a.shift_search = group::<PyShiftSearchSettings>(v)?;
-            Ok(())
-        },
-    },
-    Keyword {
-        name: "model",
-        callers: TARGET,
-        set: |a, v| {
-            a.model = Some(v.extract()?);
-            Ok(())
-        },
-    },
-];
+pub const KEYWORDS: &[Keyword] = keywords! {
+    preset: REGISTER, some;
+    robust: REGISTER, object;
+    seed: ALL, value;
+    threads: ONE_CALL, value;
+    max_source_points: SOURCE, some;
+    max_target_points: TARGET, some;
+    inlier_distance: REGISTER, some;
+    free_motion_ratio: REGISTER, some;
+    mlp: TARGET, (PyMlpSettings);
+    fit: TARGET, (PyFitSettings);
+    multistart: REGISTER, (PyMultistartSettings);
+    coarse_to_fine: REGISTER, (PyCoarseToFineSettings);
+    lm: SOURCE, (PyLmSettings);
+    polish: SOURCE, (PyPolishSettings);
+    shift_search: REGISTER, (PyShiftSearchSettings);
+    model: TARGET, some;
+};
 
 /// The settings keywords of a call, before they are applied to the preset: each `None` keeps
 /// the preset's value.

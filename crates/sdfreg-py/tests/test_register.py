@@ -214,14 +214,21 @@ def test_robust_settings_mirror_the_core() -> None:
     assert eval(repr(fixed), vars(sdfreg)) == fixed
 
 
-def test_everyday_keywords_are_keyword_only_and_none_means_the_presets() -> None:
+def test_everyday_keywords_are_keyword_only_and_none_means_the_presets(pair) -> None:
     params = inspect.signature(sdfreg.register).parameters
-    assert list(params)[:2] == ["source", "target"]
-    for name in list(params)[2:]:
-        assert params[name].kind is inspect.Parameter.KEYWORD_ONLY, name
-    assert {n for n, p in params.items() if p.default is None} >= {"preset", "robust", *GROUPS}
-    core = _sdfreg._core_defaults()
-    assert (params["seed"].default, params["threads"].default) == (core["seed"], core["threads"])
+    assert list(params) == ["source", "target", "init", "refine", "settings"]
+    assert params["init"].kind is params["refine"].kind is inspect.Parameter.KEYWORD_ONLY
+    assert params["settings"].kind is inspect.Parameter.VAR_KEYWORD
+    takes = {n for n, fns in _sdfreg._settings_keywords().items() if "register" in fns}
+    assert takes >= {"preset", "robust", "seed", "threads", *GROUPS}
+    source, target, _ = pair
+    # None keeps the preset's value: the same numbers as leaving every keyword out.
+    nones = {name: None for name in takes}
+    a = sdfreg.register(source, target, **{**nones, **QUICK})
+    b = sdfreg.register(source, target, **QUICK)
+    assert np.array_equal(a.transformation, b.transformation)
+    with pytest.raises(TypeError, match="register\\(\\) got an unexpected keyword argument 'seeds'"):
+        sdfreg.register(source, target, seeds=1)
 
 
 def test_settings_objects_and_presets_change_the_run(pair) -> None:

@@ -9,8 +9,8 @@
 //! the alternations, the final LM and every query read the MLP (the grid's few-thousandths
 //! error only moves where a start's five coarse steps end).
 //!
-//! [`BakedGrid::bake`] makes the grid; [`Baked`] is the [`Field`] that reads it; `WithGrid`
-//! (crate-private) is a target with its grid as the registration stages see it
+//! [`BakedGrid::bake`] makes the grid; [`Baked`] is the [`Field`] that reads it. The pipeline's
+//! `WithGrid` (crate-private) is a target with its grid as the registration stages see it
 //! ([`crate::SdfModel::register`], [`crate::MeshModel::register`]).
 
 use rayon::prelude::*;

@@ -1,19 +1,13 @@
-//! The robust kernel: Geman–McClure weights, their scale, and when a registration uses them.
+//! When a registration uses the robust kernel ([`crate::solve::kernel`]): one typed choice,
+//! [`RobustMode`], with its settings ([`RobustSettings`]), and the kernel of one run
+//! ([`KernelPolicy`]).
 //!
-//! Points of a partial scan that the target does not cover have large residuals; with least
-//! squares they pull the pose off. Iteratively reweighted least squares with the Geman–McClure
-//! kernel `ρ(r) = c² r² / (c² + r²)` (weight `w = (c² / (c² + r²))²`) lets them go: the SDF's LM
-//! ([`crate::solve::lm`]) and the final polish ([`crate::pipeline::polish`]) both use [`Kernel::rho_weight`].
-//!
-//! The scale `c`:
-//! - in the SDF stage, from the residuals Φ of the moved source: `c = κ · median |Φ|`, at least
-//!   [`RobustSettings::floor`], with κ annealed geometrically from [`RobustSettings::kappa_start`]
-//!   to [`RobustSettings::kappa_end`] over the coarse-to-fine alternations ([`kappa`]);
-//! - in the polish, [`SCALE_SIGMAS`] robust standard deviations ([`MAD_TO_SIGMA`] × median |r|),
-//!   re-estimated on the residuals under it until it settles ([`inlier_scale`]).
-//!
-//! When: one typed choice, [`RobustMode`]. The default, [`RobustMode::Auto`], runs least squares
-//! and redoes a poorly fitting result with the kernel ([`rerun_settings`], [`keep_rerun`]).
+//! In the SDF stage the scale comes from the residuals Φ of the moved source:
+//! `c = κ · median |Φ|`, at least [`RobustSettings::floor`], with κ annealed geometrically from
+//! [`RobustSettings::kappa_start`] to [`RobustSettings::kappa_end`] over the coarse-to-fine
+//! alternations ([`KernelPolicy::kappa`]). The default, [`RobustMode::Auto`], runs least squares
+//! and redoes a poorly fitting result with the kernel ([`crate::pipeline::rerun`]); a result's
+//! share outside the target's coverage is [`outside_share`].
 
 use rayon::prelude::*;
 

@@ -1,4 +1,12 @@
 //! The robust kernel: Geman–McClure weights and their scale.
+//!
+//! Points of a partial scan that the target does not cover have large residuals; with least
+//! squares they pull the pose off. Iteratively reweighted least squares with the Geman–McClure
+//! kernel `ρ(r) = c² r² / (c² + r²)` (weight `w = (c² / (c² + r²))²`) lets them go: the SDF's LM
+//! ([`crate::solve::lm`]) and the final polish both use [`Kernel::rho_weight`]. In the polish the
+//! scale is [`SCALE_SIGMAS`] robust standard deviations ([`MAD_TO_SIGMA`] × median |r|),
+//! re-estimated on the residuals under it until it settles (`inlier_scale`); when a
+//! registration uses the kernel is the pipeline's choice (`pipeline::robust`).
 
 /// Robust standard deviations in the polish's kernel scale.
 pub const SCALE_SIGMAS: f64 = 3.0;
