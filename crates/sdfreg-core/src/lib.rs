@@ -46,7 +46,7 @@
 //!    (bounding box, centroid, the unit-frame normalisation), [`geometry::mesh`] (sampling
 //!    triangles), [`geometry::tree`] (the k-d tree, the point spacing), local planes.
 //! 2. [`field`]: the [`field::Field`] trait, the MLP with hand-written derivatives
-//!    ([`field::mlp`], its activation in [`field::activation`]), the local grid
+//!    ([`field::mlp`], its softplus kernels in `field::activation`), the local grid
 //!    ([`field::local_grid`]), Φ = MLP + grid ([`field::sdf`]), Φ baked into a grid
 //!    ([`field::baked`]), a mesh's exact distance ([`field::mesh`]).
 //! 3. [`fit`]: fitting Φ — [`fit::fitter::SdfFitter`] (losses, queries, Adam),

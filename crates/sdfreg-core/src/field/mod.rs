@@ -1,9 +1,17 @@
-//! What the solver registers against: a distance field Φ of the target in its unit frame
-//! ([`Field`]) — the fitted MLP ([`crate::field::mlp::Mlp`]) or a mesh's exact distance
-//! ([`crate::field::mesh::MeshField`]) — together with the target points the polish and the
-//! quality figures use (`Surface`, within the crate).
+//! Layer 2, distance fields: what the solver registers against, a distance field Φ of the
+//! target in its unit frame ([`Field`]).
+//!
+//! - [`mlp`]: the network with hand-written first and second derivatives
+//!   ([`mlp::Mlp`], its softplus kernels in `activation`);
+//! - [`local_grid`]: a scene's sparse voxel grid of corrections; [`sdf`]: the fitted Φ, the
+//!   MLP plus, for a local model, that grid ([`sdf::SdfField`]);
+//! - [`baked`]: Φ sampled on a grid and read by trilinear interpolation;
+//! - [`mesh`]: a mesh's exact distance ([`mesh::MeshField`]).
+//!
+//! The target points the polish and the quality figures use join Φ one layer up, in the
+//! pipeline's `Surface`.
 
-pub mod activation;
+pub(crate) mod activation;
 pub mod baked;
 pub mod local_grid;
 pub mod mesh;
