@@ -182,6 +182,21 @@ impl Common {
     }
 }
 
+impl Common {
+    /// `e` with the flag named that set the setting it is about (`--local-voxel` sets
+    /// `fit.local.cells`), so the message says what to change on the command line.
+    pub fn name_flag(&self, e: anyhow::Error) -> anyhow::Error {
+        let setting = match e.downcast_ref::<sdfreg_core::Error>() {
+            Some(sdfreg_core::Error::InvalidSetting { name, .. }) => *name,
+            _ => return e,
+        };
+        match (setting, self.local_voxel) {
+            ("fit.local.cells", Some(v)) => e.context(format!("--local-voxel {v}")),
+            _ => e,
+        }
+    }
+}
+
 /// How input clouds are read.
 #[derive(Args, Debug, Clone)]
 pub struct InputArgs {

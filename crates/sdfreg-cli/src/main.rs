@@ -231,8 +231,10 @@ fn cmd_fit(a: FitArgs) -> Result<()> {
         }
     };
     let start = std::time::Instant::now();
-    let model = SdfModel::fit_with_progress(&target, &settings, &report)
-        .map_err(|e| name_cloud(e.into(), &a.target, &a.target))?;
+    let model = SdfModel::fit_with_progress(&target, &settings, &report).map_err(|e| {
+        a.common
+            .name_flag(name_cloud(e.into(), &a.target, &a.target))
+    })?;
     let fit_time = start.elapsed();
     bar.finish_and_clear();
     model.save(&a.output)?;
@@ -364,7 +366,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         let target = read_cloud(&a.target, &a.input, a.common.seed)?;
         register_with_bar(&source, &target, init.as_ref(), &settings)
     }
-    .map_err(|e| name_cloud(e, &a.source, &a.target))?;
+    .map_err(|e| a.common.name_flag(name_cloud(e, &a.source, &a.target)))?;
     let m = r.matrix();
     match &a.output {
         Some(path)

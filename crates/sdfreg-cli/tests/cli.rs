@@ -815,3 +815,32 @@ fn register_onto_a_meshs_exact_distance_field() {
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("scan.xyz"), "{err}");
 }
+
+#[test]
+fn a_local_voxel_finer_than_the_points_is_refused_at_once_naming_the_flag() {
+    // The blob's 800 points are about 0.05 of its side apart: a voxel of 1e-6 would give each
+    // point voxels of its own (millions of corrections); it is refused before any is built.
+    let dir = tempfile::tempdir().unwrap();
+    pair(dir.path());
+    for command in ["fit", "register"] {
+        let mut c = sdfreg();
+        c.arg(command);
+        if command == "register" {
+            c.arg(dir.path().join("src.xyz"));
+        }
+        let out = c
+            .arg(dir.path().join("tgt.ply"))
+            .args(["--model", "local", "--local-voxel", "1e-6"])
+            .args(["-o", dir.path().join("m.sdfm").to_str().unwrap()])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{command}: {err}");
+        assert!(
+            err.starts_with("sdfreg: --local-voxel 0.000001: invalid setting `fit.local.cells`: a local voxel of 1.000e-6"),
+            "{command}: {err}"
+        );
+        assert!(err.contains("use a voxel of at least"), "{command}: {err}");
+        assert!(!dir.path().join("m.sdfm").exists());
+    }
+}

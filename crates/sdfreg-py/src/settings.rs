@@ -286,6 +286,9 @@ settings_class! {
     ///     pool: Size of the fixed pool they are drawn from.
     ///     sigma_voxels: Their spread about the target's points, in voxels.
     ///     lr_scale: The corrections' learning rate relative to the network's.
+    ///     min_voxel_spacings: A voxel below this many target point spacings is refused.
+    ///     max_memory_mib: A grid whose corrections would take more memory than this (MiB,
+    ///         80 bytes each) is refused before it is built, with the size it would have had.
     PyLocalSettings => LocalSettings as "LocalSettings", "fit.local" {
         kind: &str = "auto",
         auto_ratio: f64 = 400.0,
@@ -296,6 +299,8 @@ settings_class! {
         pool: i64 = 65536,
         sigma_voxels: f64 = 0.5,
         lr_scale: f64 = 1.0,
+        min_voxel_spacings: f64 = 0.5,
+        max_memory_mib: f64 = 1024.0,
     }
 }
 

@@ -204,6 +204,22 @@ def test_a_local_model_is_chosen_by_name_and_round_trips(pair) -> None:
     assert rot < 1.0 and trans < 0.01, (rot, trans)
 
 
+def test_a_local_grid_too_fine_or_too_large_is_a_value_error(pair) -> None:
+    """A voxel below half the point spacing, or a grid above ``max_memory_mib``, is refused
+    with a ``ValueError`` naming the setting and saying what it would have been."""
+    source, target, _ = pair
+    fine = sdfreg.FitSettings(local=sdfreg.LocalSettings(kind="local", cells=1_000_000, spacings=0.0))
+    with pytest.raises(ValueError, match=r"invalid setting `fit.local.cells`: a local voxel of 1\.000e-6"):
+        sdfreg.fit(target, fit=fine)
+    with pytest.raises(ValueError, match="use a voxel of at least"):
+        sdfreg.register(source, target, fit=fine)
+    small = sdfreg.FitSettings(local=sdfreg.LocalSettings(kind="local", max_memory_mib=0.01))
+    with pytest.raises(ValueError, match=r"corrections \(≈ [0-9.]+ MiB\), above fit.local.max_memory_mib = 0.01 MiB"):
+        sdfreg.fit(target, fit=small)
+    with pytest.raises(ValueError, match="fit.local.max_memory_mib"):
+        sdfreg.LocalSettings(max_memory_mib=0.0)
+
+
 @pytest.mark.parametrize("call", ["fit", "register", "register_many"])
 def test_an_unknown_model_kind_is_a_value_error(pair, call) -> None:
     source, target, _ = pair

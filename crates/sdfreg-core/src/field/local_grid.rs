@@ -88,7 +88,20 @@ pub struct LocalSettings {
     pub sigma_voxels: f64,
     /// The corrections' Adam learning rate relative to the network's. Default 1.
     pub lr_scale: f64,
+    /// A voxel below this many target point spacings is refused (each point would get voxels
+    /// of its own, nothing between points to fit). Default 0.5; the default voxel is at least
+    /// [`Self::spacings`] = 3 spacings.
+    pub min_voxel_spacings: f64,
+    /// A grid whose corrections would take more than this memory, MiB, is refused before it is
+    /// built, with the size it would have had ([`BYTES_PER_CORRECTION`] each). Default 1024.
+    pub max_memory_mib: f64,
 }
+
+/// Memory of one correction, bytes: its value and two Adam moments (12), its corner's key (12),
+/// its value baked into a stored model (4), and its share of the voxel map (about one voxel per
+/// corner: key, eight slots and the map's own overhead, ≈ 52).
+pub const BYTES_PER_CORRECTION: f64 = 80.0;
+
 
 impl Default for LocalSettings {
     fn default() -> Self {
@@ -102,6 +115,8 @@ impl Default for LocalSettings {
             pool: 65536,
             sigma_voxels: 0.5,
             lr_scale: 1.0,
+            min_voxel_spacings: 0.5,
+            max_memory_mib: 1024.0,
         }
     }
 }
@@ -125,7 +140,50 @@ impl LocalSettings {
         check::count_at_least("fit.local.batch", self.batch, 1)?;
         check::count_at_least("fit.local.pool", self.pool, 1)?;
         check::positive("fit.local.sigma_voxels", self.sigma_voxels)?;
-        check::positive("fit.local.lr_scale", self.lr_scale)
+        check::positive("fit.local.lr_scale", self.lr_scale)?;
+        check::non_negative("fit.local.min_voxel_spacings", self.min_voxel_spacings)?;
+        check::positive("fit.local.max_memory_mib", self.max_memory_mib)
+    }
+
+    /// The grid of the local part for the `target` points (unit frame, median point spacing
+    /// `spacing`), or `None` when Φ is the MLP alone. A voxel below
+    /// [`Self::min_voxel_spacings`] spacings, or a grid above [`Self::max_memory_mib`], is an
+    /// [`Error::InvalidSetting`](crate::base::error::Error::InvalidSetting) naming
+    /// `fit.local.cells` (the voxel) and saying what it would have been, before anything large
+    /// is allocated.
+    pub fn grid(
+        &self,
+        target: &[[f32; 3]],
+        spacing: f64,
+    ) -> Result<Option<LocalGrid>, crate::base::error::Error> {
+        let Some(voxel) = self.voxel(spacing) else {
+            return Ok(None);
+        };
+        let bad = |reason: String| crate::base::error::Error::InvalidSetting {
+            name: "fit.local.cells",
+            reason,
+        };
+        if voxel < self.min_voxel_spacings * spacing {
+            return Err(bad(format!(
+                "a local voxel of {voxel:.3e} of the target's largest side is below \
+                 fit.local.min_voxel_spacings = {} of its point spacing ({spacing:.3e}): each \
+                 point would get voxels of its own; use a voxel of at least {:.3e}",
+                self.min_voxel_spacings,
+                self.min_voxel_spacings * spacing
+            )));
+        }
+        let plan = LocalGrid::planned(target, voxel, self.band);
+        let corners = plan.corrections();
+        let mib = corners as f64 * BYTES_PER_CORRECTION / (1024.0 * 1024.0);
+        if mib > self.max_memory_mib {
+            return Err(bad(format!(
+                "a local voxel of {voxel:.3e} of the target's largest side makes {corners} \
+                 corrections (≈ {mib:.1} MiB), above fit.local.max_memory_mib = {} MiB; use a \
+                 larger voxel or raise the ceiling",
+                self.max_memory_mib
+            )));
+        }
+        Ok(Some(plan.build()))
     }
 
     /// The voxel side for a target of median point spacing `spacing` (unit frame), or `None`
@@ -223,19 +281,27 @@ fn dilate(cells: &[[i32; 3]], lo: i32, hi: i32) -> Vec<[i32; 3]> {
     out
 }
 
-impl LocalGrid {
-    /// Parameters at the corners of every voxel within `band` voxels of a voxel holding one of
-    /// `target`'s points, numbered in sorted order (the same grid for the same points).
-    pub fn allocate(target: &[[f32; 3]], voxel: f64, band: usize) -> Self {
-        let voxel = voxel as f32;
-        let mut occupied: Vec<[i32; 3]> = target.par_iter().map(|p| locate(p, voxel).0).collect();
-        occupied.par_sort_unstable();
-        occupied.dedup();
-        let b = band as i32;
-        // Corners of the voxels within the band; then every voxel having one of them as a
-        // corner, so that the correction falls continuously to 0 beyond the band.
-        let corners = dilate(&occupied, -b, b + 1);
-        let cells = dilate(&occupied, -b - 1, b + 1)
+/// A [`LocalGrid`] before its voxel map is built.
+struct GridPlan {
+    voxel: f32,
+    band: i32,
+    /// The voxels holding target points, sorted.
+    occupied: Vec<[i32; 3]>,
+    /// The corners holding a correction, sorted (their slots).
+    corners: Vec<[i32; 3]>,
+}
+
+impl GridPlan {
+    /// The corrections the grid will hold.
+    fn corrections(&self) -> usize {
+        self.corners.len()
+    }
+
+    /// The grid: every voxel having a corner with a correction, with its corners' slots.
+    fn build(self) -> LocalGrid {
+        let b = self.band;
+        let corners = self.corners;
+        let cells = dilate(&self.occupied, -b - 1, b + 1)
             .into_par_iter()
             .map(|c| {
                 let slots = CORNERS.map(|o| {
@@ -247,10 +313,43 @@ impl LocalGrid {
             .collect::<Vec<_>>()
             .into_iter()
             .collect();
-        Self {
-            voxel,
+        LocalGrid {
+            voxel: self.voxel,
             corners,
             cells,
+        }
+    }
+}
+
+/// The voxels holding `target` points, sorted, each once.
+fn occupied(target: &[[f32; 3]], voxel: f32) -> Vec<[i32; 3]> {
+    let mut occupied: Vec<[i32; 3]> = target.par_iter().map(|p| locate(p, voxel).0).collect();
+    occupied.par_sort_unstable();
+    occupied.dedup();
+    occupied
+}
+
+impl LocalGrid {
+    /// Parameters at the corners of every voxel within `band` voxels of a voxel holding one of
+    /// `target`'s points, numbered in sorted order (the same grid for the same points).
+    pub fn allocate(target: &[[f32; 3]], voxel: f64, band: usize) -> Self {
+        Self::planned(target, voxel, band).build()
+    }
+
+    /// The voxels and corners of [`Self::allocate`]'s grid, before its voxel map is built:
+    /// [`GridPlan::corrections`] says how large it will be.
+    fn planned(target: &[[f32; 3]], voxel: f64, band: usize) -> GridPlan {
+        let voxel = voxel as f32;
+        let occupied = occupied(target, voxel);
+        let b = band as i32;
+        // Corners of the voxels within the band; then every voxel having one of them as a
+        // corner, so that the correction falls continuously to 0 beyond the band.
+        let corners = dilate(&occupied, -b, b + 1);
+        GridPlan {
+            voxel,
+            band: b,
+            occupied,
+            corners,
         }
     }
 
@@ -439,6 +538,65 @@ mod tests {
         // Far from every point nothing is stored and the correction is 0.
         let theta = vec![1.0; large.len()];
         assert_eq!(large.eval(&theta, &[0.5, 0.5, 0.3]), (0.0, [0.0; 3]));
+    }
+
+    #[test]
+    fn a_voxel_finer_than_the_points_or_a_grid_above_the_ceiling_is_refused_before_it_is_built() {
+        // A 200 × 200 square of points 0.005 apart (unit frame).
+        let square: Vec<[f32; 3]> = (0..200 * 200)
+            .map(|i| [(i % 200) as f32 * 0.005, (i / 200) as f32 * 0.005, 0.0])
+            .collect();
+        let spacing = 0.005;
+        let local = |cells: usize, max_memory_mib: f64| LocalSettings {
+            kind: ModelKind::Local,
+            cells,
+            spacings: 0.0,
+            max_memory_mib,
+            ..LocalSettings::default()
+        };
+        // The default voxel (1/128 here) is accepted, and the grid is the one `allocate` makes.
+        let grid = local(128, 1024.0).grid(&square, spacing).unwrap().unwrap();
+        assert_eq!(
+            grid.len(),
+            LocalGrid::allocate(&square, 1.0 / 128.0, 1).len()
+        );
+        // A voxel of a thousandth of the spacing: refused, naming the setting and the spacing.
+        let err = local(200_000, 1024.0)
+            .grid(&square, spacing)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("invalid setting `fit.local.cells`: a local voxel of 5.000e-6"),
+            "{err}"
+        );
+        assert!(
+            err.contains("point spacing (5.000e-3)") && err.contains("at least 2.500e-3"),
+            "{err}"
+        );
+        // A voxel of 0.004 makes this many corrections; a ceiling just below them refuses it,
+        // saying how many and how large, and one just above accepts it.
+        let corrections = LocalGrid::allocate(&square, 1.0 / 250.0, 1).len();
+        let mib = corrections as f64 * BYTES_PER_CORRECTION / (1024.0 * 1024.0);
+        let err = local(250, mib * 0.99)
+            .grid(&square, spacing)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(&format!("makes {corrections} corrections (≈ {mib:.1} MiB)")),
+            "{err}"
+        );
+        let kept = local(250, mib * 1.01)
+            .grid(&square, spacing)
+            .unwrap()
+            .unwrap();
+        assert_eq!(kept.len(), corrections);
+        // A global model has no grid to refuse.
+        let global = LocalSettings {
+            kind: ModelKind::Global,
+            max_memory_mib: 1e-9,
+            ..local(200_000, 1.0)
+        };
+        assert!(global.grid(&square, spacing).unwrap().is_none());
     }
 
     #[test]

@@ -21,13 +21,14 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use crate::base::error::Error;
 use crate::field::local_grid::LocalGrid;
 use crate::field::mlp::{Mlp, MlpSettings, Workspace};
 use crate::field::sdf::SdfField;
 use crate::field::BLOCK;
 use crate::fit::adam::Adam;
 use crate::fit::settings::FitSettings;
-use crate::geometry::tree::{build_tree, Tree};
+use crate::geometry::tree::{build_tree, target_spacing, Tree};
 
 /// One query of the projection loss: the point, its nearest target point and its weight.
 #[derive(Clone, Copy, Debug)]
@@ -127,17 +128,51 @@ struct Batch {
 }
 
 impl SdfFitter {
-    /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool.
-    /// `target` must hold at least 2 points.
+    /// Sets up the fit on `target` (unit frame): initial network, k-d tree, query pool, and
+    /// the local grid when the settings ask for one, whatever its size ([`Self::try_new`]
+    /// refuses a grid the settings bound). `target` must hold at least 2 points.
     pub fn new(
         target: Vec<[f32; 3]>,
         mlp: &MlpSettings,
         settings: &FitSettings,
         seed: u64,
     ) -> Self {
+        let tree = build_tree(&target);
+        let local = settings
+            .local
+            .voxel(target_spacing(&target, &tree))
+            .map(|voxel| LocalGrid::allocate(&target, voxel, settings.local.band));
+        Self::assemble(target, tree, local, mlp, settings, seed)
+    }
+
+    /// [`Self::new`], refusing a local grid whose voxel is below
+    /// [`LocalSettings::min_voxel_spacings`](crate::field::local_grid::LocalSettings) target
+    /// spacings or whose size is above its `max_memory_mib`, before it is built
+    /// ([`LocalSettings::grid`](crate::field::local_grid::LocalSettings::grid)).
+    pub fn try_new(
+        target: Vec<[f32; 3]>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Result<Self, Error> {
+        let tree = build_tree(&target);
+        let local = settings
+            .local
+            .grid(&target, target_spacing(&target, &tree))?;
+        Ok(Self::assemble(target, tree, local, mlp, settings, seed))
+    }
+
+    /// The fit on `target` with its k-d `tree` and local grid.
+    fn assemble(
+        target: Vec<[f32; 3]>,
+        tree: Tree,
+        local: Option<LocalGrid>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let net = Mlp::new(mlp, &mut rng);
-        let tree = build_tree(&target);
         let m = target.len();
         let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
         let centres: Vec<[f32; 3]> = if s >= m {
@@ -182,11 +217,6 @@ impl SdfFitter {
                 )
             })
             .collect();
-        // The local part, when the target asks for it: its grid follows from the points alone.
-        let local = settings
-            .local
-            .voxel(crate::geometry::tree::target_spacing(&target, &tree))
-            .map(|voxel| LocalGrid::allocate(&target, voxel, settings.local.band));
         let n_local = local.as_ref().map_or(0, LocalGrid::len);
         let local_pool = match &local {
             Some(grid) => {

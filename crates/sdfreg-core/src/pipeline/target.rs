@@ -27,7 +27,7 @@ pub(crate) fn prefit(
         .iter()
         .map(|p| norm.to_unit(p))
         .collect();
-    let mut fitter = SdfFitter::new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT);
+    let mut fitter = SdfFitter::try_new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT)?;
     let total = s.fit.prefit_steps;
     let chunk = 50.max(total / 10);
     let mut done = 0;

@@ -146,6 +146,8 @@ class LocalSettings:
         pool: int = 65536,
         sigma_voxels: float = 0.5,
         lr_scale: float = 1.0,
+        min_voxel_spacings: float = 0.5,
+        max_memory_mib: float = 1024.0,
     ) -> LocalSettings: ...
     @property
     def kind(self) -> str: ...
@@ -165,6 +167,10 @@ class LocalSettings:
     def sigma_voxels(self) -> float: ...
     @property
     def lr_scale(self) -> float: ...
+    @property
+    def min_voxel_spacings(self) -> float: ...
+    @property
+    def max_memory_mib(self) -> float: ...
 
 @final
 class MultistartSettings:
