@@ -102,7 +102,6 @@ pub struct LocalSettings {
 /// corner: key, eight slots and the map's own overhead, ≈ 52).
 pub const BYTES_PER_CORRECTION: f64 = 80.0;
 
-
 impl Default for LocalSettings {
     fn default() -> Self {
         Self {
