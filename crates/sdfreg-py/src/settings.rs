@@ -121,13 +121,6 @@ macro_rules! settings_class {
         #[derive(Clone, PartialEq)]
         pub struct $py(pub sdfreg_core::$core);
 
-        impl Group for $py {
-            type Core = sdfreg_core::$core;
-            fn core(&self) -> &sdfreg_core::$core {
-                &self.0
-            }
-        }
-
         impl $py {
             fn check(s: &sdfreg_core::$core) -> PyResult<()> {
                 s.validate().map_err(error::registration)
@@ -681,7 +674,7 @@ macro_rules! keywords {
     (@ value $v:ident) => { $v.extract()? };
     (@ some $v:ident) => { Some($v.extract()?) };
     (@ object $v:ident) => { Some($v.clone()) };
-    (@ ($group:ty) $v:ident) => { group::<$group>($v)? };
+    (@ ($group:ty) $v:ident) => { Some(group::<$group>($v)?.get().0.clone()) };
 }
 
 /// The settings keywords, declared once for `register`, `register_many`, `SdfModel.register`,
@@ -810,13 +803,13 @@ impl<'py> SettingsArgs<'py> {
     }
 }
 
-/// A settings-group keyword's value: an instance of its class `G` (None is handled by the
-/// caller).
-fn group<G>(value: &Bound<'_, PyAny>) -> PyResult<Option<G::Core>>
+/// A settings-group keyword's value as its class `G` (None is handled by the caller); another
+/// type is a `TypeError`.
+fn group<'a, 'py, G>(value: &'a Bound<'py, PyAny>) -> PyResult<&'a Bound<'py, G>>
 where
-    G: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync + Group,
+    G: pyo3::PyClass<Frozen = pyo3::pyclass::boolean_struct::True> + Sync,
 {
-    let g = value.cast::<G>().map_err(|_| {
+    value.cast::<G>().map_err(|_| {
         pyo3::exceptions::PyTypeError::new_err(format!(
             "expected a {} or None, got {}",
             G::NAME,
@@ -825,14 +818,5 @@ where
                 .name()
                 .map_or("?".into(), |n| n.to_string())
         ))
-    })?;
-    Ok(Some(g.get().core().clone()))
-}
-
-/// A settings class wrapping its core settings group.
-pub trait Group {
-    /// The core's settings group.
-    type Core: Clone;
-    /// The wrapped group.
-    fn core(&self) -> &Self::Core;
+    })
 }

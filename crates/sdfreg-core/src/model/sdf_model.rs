@@ -83,8 +83,19 @@ impl SdfModel {
         settings.validate()?;
         validate(target, Role::Target, MIN_POINTS)?;
         crate::base::pool::in_pool(settings.threads, || {
+            // The registration's random stream, as `register()` draws it, so that a refined
+            // registration against the model keeps `register()`'s numbers.
             let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-            let model = Self::fit_drawing(target, settings, &mut rng, progress)?;
+            let (norm, fitter) = prefit(target, settings, &mut rng, progress)?;
+            let model = Self {
+                norm,
+                fitter,
+                mlp: settings.mlp.clone(),
+                seed: settings.seed,
+                grid: OnceLock::new(),
+                planes: SharedPlanes::default(),
+                corners: OnceLock::new(),
+            };
             model.baked_grid();
             model.baked_corners();
             Ok(model)
@@ -126,26 +137,6 @@ impl SdfModel {
             Some(grid) => frozen.with_sparse(SparseBaked::new(grid, self.baked_corners())),
             None => frozen,
         }
-    }
-
-    /// The fit, drawing the target's subsample from `rng` (the registration's stream, so that
-    /// [`crate::register()`] keeps its numbers).
-    pub(crate) fn fit_drawing(
-        target: &[Point3<f64>],
-        s: &RegisterSettings,
-        rng: &mut ChaCha8Rng,
-        progress: &(dyn Fn(Stage) + Sync),
-    ) -> Result<Self, Error> {
-        let (norm, fitter) = prefit(target, s, rng, progress)?;
-        Ok(Self {
-            norm,
-            fitter,
-            mlp: s.mlp.clone(),
-            seed: s.seed,
-            grid: OnceLock::new(),
-            planes: SharedPlanes::default(),
-            corners: OnceLock::new(),
-        })
     }
 
     /// Registers `source` (user units) onto the model with Φ frozen: the multi-start (or
