@@ -3,6 +3,7 @@
     cargo bench --bench lidar_pairs -- --write target/lidar-pairs     # the pairs (street, room)
     benches/compare-env                                                # once: open3d, small_gicp
     .venv-compare/bin/python benches/lidar_compare.py --pairs target/lidar-pairs
+    .venv-compare/bin/python benches/lidar_compare.py --real ../shared/data/lidar  # real scans
 
 Each pair (`DIR/{street,room}/{source,target}.ply`, `gt.txt` mapping source into target) is
 registered from several starts: the identity (the scans' own offset: 1.2 m / 3° for the street,
@@ -125,12 +126,93 @@ def speed(kind: str, model: "sdfreg.SdfModel", src: np.ndarray, tgt: np.ndarray,
     return rows
 
 
+def fidelity(model: "sdfreg.SdfModel", tgt: np.ndarray) -> tuple[float, float]:
+    """Median and 95th percentile of |Φ| (m) on the target's own points (missing returns, the
+    points at exactly the origin, left out as sdfreg leaves them out)."""
+    pts = tgt[~np.all(tgt == 0.0, axis=1)]
+    d = np.abs(np.asarray(model.distance(pts)))
+    return float(np.median(d)), float(np.percentile(d, 95))
+
+
+def real(root: Path, rows: List[dict], quick: bool) -> None:
+    """The real scans in ROOT (`../shared/data/lidar`): the outdoor pair against its two published
+    references, and the KITTI frames (no poses) compared between methods and starts."""
+    voxel, max_corr = 0.05, 1.0
+    PARAMS["real"] = (voxel, max_corr)
+    peers = {k: v for k, v in methods("real").items() if k != "sdfreg"}
+    pairs = []
+    op = root / "outdoor_pair"
+    if (op / "gt.txt").is_file():
+        pairs.append(("outdoor", op / "src.ply", op / "tgt.ply", [np.loadtxt(op / "gt.txt"), np.loadtxt(op / "gt_alt.txt")]))
+    kd = root / "kitti00_frames"
+    if kd.is_dir():
+        frames = sorted(kd.glob("*.ply"))
+        steps = [(i, i + 1) for i in range(len(frames) - 1)] + ([(0, len(frames) - 1)] if len(frames) > 2 else [])
+        for a, b in steps[:2] if quick else steps:
+            pairs.append((f"kitti {a}->{b}", frames[a], frames[b], []))
+    if not pairs:
+        print(f"lidar_compare.py: no real scans in {root}; skipped", file=sys.stderr)
+        return
+    print("real scans: small_gicp and Open3D GICP at 0.05 m downsampling, 1 m correspondences, 2 threads")
+    for name, sp, tp, refs in pairs:
+        src = np.asarray(sdfreg.read_point_cloud(sp))
+        tgt = np.asarray(sdfreg.read_point_cloud(tp))
+        t0 = time.perf_counter()
+        model = sdfreg.fit(tgt)
+        fit_s = time.perf_counter() - t0
+        med, p95 = fidelity(model, tgt)
+        print(f"{name}: {len(src)} / {len(tgt)} points; sdfreg.fit {fit_s:.2f} s, {model.kind}, voxel "
+              f"{model.voxel or 0.0:.3f} m, |Φ| on the target's points median {med:.4f} m, 95 % {p95:.4f} m")
+        rows.append({"pair": name, "method": "sdfreg.fit", "time_s": fit_s, "voxel_m": model.voxel,
+                     "phi_median_m": med, "phi_p95_m": p95})
+        # The reference a start is taken from: the published one, or small_gicp's answer.
+        gicp = peers.get("small_gicp GICP")
+        ref = refs[0] if refs else (gicp(src, tgt, np.eye(4)) if gicp else np.eye(4))
+        starts = {"identity": np.eye(4), "3 m, 20° off": yaw_shift(20.0, 3.0) @ ref}
+        runs = {"sdfreg": lambda s_, t_, i: np.asarray(sdfreg.register(s_, t_, init=i).transformation),
+                "sdfreg model": lambda s_, t_, i: np.asarray(model.register(s_, init=i).transformation),
+                **peers}
+        model.register(src, init=np.eye(4))  # the model's first registration bakes its grid
+        answers: Dict[str, np.ndarray] = {}
+        for method, run in runs.items():
+            for start, init in starts.items():
+                seconds, t = median_time(lambda: run(src, tgt, init), 1 if method == "sdfreg" else 5)
+                answers[f"{method} / {start}"] = t
+                row = {"pair": name, "method": method, "start": start, "time_s": seconds,
+                       "transformation": t.tolist()}
+                if refs:
+                    errs = [errors(t, r) for r in refs]
+                    row["error_gt"], row["error_gt_alt"] = errs
+                    text = "  ".join(f"{r:.3f}° {m:.4f} m" for r, m in errs)
+                    print(f"  {method:<16} {start:<14} against gt.txt / gt_alt.txt: {text}   {seconds:.3f} s", flush=True)
+                else:
+                    rot, tr = errors(t, ref)
+                    row["against_small_gicp"] = [rot, tr]
+                    print(f"  {method:<16} {start:<14} step {np.linalg.norm(t[:3, 3]):.3f} m, against small_gicp "
+                          f"(identity) {rot:.3f}° {tr:.4f} m   {seconds:.3f} s", flush=True)
+                rows.append(row)
+        for method in runs:
+            a, b = answers.get(f"{method} / identity"), answers.get(f"{method} / 3 m, 20° off")
+            if a is not None and b is not None:
+                rot, tr = errors(a, b)
+                print(f"  {method:<16} identity against far start: {rot:.3f}° {tr:.4f} m")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description="LiDAR pairs: sdfreg against small_gicp and Open3D GICP")
     parser.add_argument("--pairs", type=Path, default=Path("target/lidar-pairs"))
+    parser.add_argument("--real", type=Path, help="real scans (../shared/data/lidar): the outdoor pair "
+                        "and the KITTI frames; the procedural pairs are then skipped unless --pairs is given")
+    parser.add_argument("--quick", action="store_true", help="with --real: the first two KITTI steps only")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     rows: List[dict] = []
+    if args.real is not None:
+        real(args.real, rows, args.quick)
+        if args.json:
+            args.json.write_text(json.dumps(rows, indent=1) + "\n")
+        if "--pairs" not in sys.argv:
+            return
     found = False
     for kind in ("street", "room"):
         d = args.pairs / kind

@@ -74,3 +74,113 @@ fn a_local_model_saves_and_loads_with_the_same_registrations() {
     assert_eq!(global.kind(), ModelKind::Global);
     assert_eq!(global.local_parameters(), 0);
 }
+
+/// Median of |Φ| (metres) of `model` on `points`.
+fn median_abs_phi(model: &SdfModel, points: &[nalgebra::Point3<f64>]) -> f64 {
+    let mut abs: Vec<f64> = model.distance(points).iter().map(|v| v.abs()).collect();
+    abs.sort_by(f64::total_cmp);
+    abs[abs.len() / 2]
+}
+
+#[test]
+fn a_street_model_from_planes_lies_on_its_points_where_trained_corrections_do_not() {
+    // The local corrections set in closed form from the target's planes, against the same grid
+    // trained by Adam (the earlier default, with its 500 pre-fit steps): |Φ| on the target's
+    // own points, metres.
+    let pair = street_pair();
+    let s = RegisterSettings::default();
+    let planes = SdfModel::fit(&pair.target, &s).unwrap();
+    let voxel = planes.voxel().unwrap();
+    let mut trained = s.clone();
+    trained.fit.local.plane_fit = false;
+    trained.fit.local.prefit_steps = s.fit.prefit_steps;
+    let adam = SdfModel::fit(&pair.target, &trained).unwrap();
+    let sample = &pair.target[..pair.target.len().min(20_000)];
+    let (p, a) = (
+        median_abs_phi(&planes, sample),
+        median_abs_phi(&adam, sample),
+    );
+    assert!(
+        p < 0.05 * voxel,
+        "planes: median |Φ| {p} m, voxel {voxel} m"
+    );
+    assert!(p * 2.0 < a, "planes {p} m against trained {a} m");
+}
+
+#[test]
+fn missing_returns_at_the_origin_are_left_out_of_both_clouds() {
+    // A scanner writes the beams that returned nothing as (0, 0, 0): thousands of them in both
+    // scans, at the same place in each sensor frame. They are left out before anything is
+    // drawn, so the registration is the clean pair's, bit for bit, by every entry point.
+    let pair = room_pair();
+    let s = RegisterSettings::default();
+    let zeros = vec![nalgebra::Point3::origin(); 3000];
+    let source = [pair.source.clone(), zeros.clone()].concat();
+    let target = [zeros.clone(), pair.target.clone()].concat();
+    assert_eq!(sdfreg_core::geometry::cloud::missing_returns(&source), 3000);
+    let clean = register(&pair.source, &pair.target, None, &s).unwrap();
+    let dirty = register(&source, &target, None, &s).unwrap();
+    assert_eq!(clean.t_target_source, dirty.t_target_source);
+    let model = SdfModel::fit(&target, &s).unwrap();
+    let clean_model = SdfModel::fit(&pair.target, &s).unwrap();
+    let a = model.register(&source, None, &s).unwrap();
+    let b = clean_model.register(&pair.source, None, &s).unwrap();
+    assert_eq!(a.t_target_source, b.t_target_source);
+    // Too few points besides them is an error that says so.
+    let few = [pair.source[..5].to_vec(), zeros.clone()].concat();
+    let err = register(&few, &pair.target, None, &s).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            sdfreg_core::Error::TooFewBesidesMissingReturns {
+                found: 5,
+                missing: 3000,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    // One point at the origin can be a real vertex: it stays.
+    let one = [pair.source.clone(), zeros[..1].to_vec()].concat();
+    assert_eq!(sdfreg_core::geometry::cloud::missing_returns(&one), 0);
+}
+
+#[test]
+fn a_scene_mesh_keeps_only_the_surface_near_the_scan() {
+    // Beyond the corrections' band Φ is the MLP's alone; its zero level set there is no
+    // surface the scan saw, and the mesh leaves it out: every triangle's centre lies within a
+    // voxel (or two mesh cells) of a target point, and most of the target lies near the mesh.
+    let pair = street_pair();
+    let model = SdfModel::fit(&pair.target, &RegisterSettings::default()).unwrap();
+    let voxel = model.voxel().unwrap();
+    let resolution = 256;
+    let (vertices, triangles) = model.mesh(resolution).unwrap();
+    assert!(triangles.len() > 1000, "{} triangles", triangles.len());
+    let extent = model.normalization().scale;
+    let reach = voxel.max(2.0 * extent / resolution as f64) * 1.001;
+    let unit: Vec<[f32; 3]> = pair
+        .target
+        .iter()
+        .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+        .collect();
+    let tree = sdfreg_core::geometry::tree::build_tree(&unit);
+    for t in &triangles {
+        let c = (vertices[t[0]].coords + vertices[t[1]].coords + vertices[t[2]].coords) / 3.0;
+        let d = tree
+            .nearest_one::<kiddo::SquaredEuclidean>(&[c.x as f32, c.y as f32, c.z as f32])
+            .distance
+            .sqrt() as f64;
+        assert!(
+            d <= reach,
+            "a triangle {d} m from the scan (reach {reach} m)"
+        );
+    }
+    // Every vertex is used.
+    let mut used = vec![false; vertices.len()];
+    for t in &triangles {
+        for &i in t {
+            used[i] = true;
+        }
+    }
+    assert!(used.iter().all(|&u| u));
+}

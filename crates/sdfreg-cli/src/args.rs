@@ -60,12 +60,21 @@ pub struct Common {
     /// Worker threads; 0 = one per core. Results do not depend on it.
     #[arg(long, default_value_t = 0)]
     pub threads: usize,
-    /// Coarse-to-fine alternations of SDF refinement and LM steps [default: 10].
+    /// Coarse-to-fine alternations of SDF refinement and LM steps, for an object (a global Φ)
+    /// [default: 10].
     #[arg(long)]
     pub alternations: Option<usize>,
-    /// Adam steps of the SDF pre-fit [default: 500].
+    /// The same for a scene (a local Φ: `--model local`, or `auto` on a room or street)
+    /// [default: 5].
+    #[arg(long)]
+    pub scene_alternations: Option<usize>,
+    /// Adam steps of the SDF pre-fit, for an object (a global Φ) [default: 500].
     #[arg(long)]
     pub prefit_steps: Option<usize>,
+    /// The same for a scene (a local Φ, whose surface comes from the target's planes)
+    /// [default: 200].
+    #[arg(long)]
+    pub scene_prefit_steps: Option<usize>,
     /// Adam steps of SDF refinement per alternation [default: 40].
     #[arg(long)]
     pub refine_steps: Option<usize>,
@@ -160,6 +169,11 @@ impl Common {
         }
         let set = |field: &mut usize, flag: Option<usize>| *field = flag.unwrap_or(*field);
         set(&mut s.coarse_to_fine.alternations, self.alternations);
+        set(
+            &mut s.coarse_to_fine.scene_alternations,
+            self.scene_alternations,
+        );
+        set(&mut s.fit.local.prefit_steps, self.scene_prefit_steps);
         set(&mut s.fit.refine_steps, self.refine_steps);
         set(&mut s.fit.prefit_steps, self.prefit_steps);
         set(&mut s.max_source_points, self.max_source_points);

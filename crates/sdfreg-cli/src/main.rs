@@ -187,15 +187,26 @@ fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f6
             }
         }
     }
-    if !input.drop_non_finite {
-        return Ok(read_point_cloud(path)?);
-    }
-    let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
-    if dropped > 0 {
+    let points = if input.drop_non_finite {
+        let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
+        if dropped > 0 {
+            eprintln!(
+                "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+                path.display(),
+                points.len() + dropped
+            );
+        }
+        points
+    } else {
+        read_point_cloud(path)?
+    };
+    let missing = sdfreg_core::geometry::cloud::missing_returns(&points);
+    if missing > 0 {
         eprintln!(
-            "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+            "sdfreg: {}: {missing} of {} points are at exactly (0, 0, 0), a scanner's missing \
+             returns: left out",
             path.display(),
-            points.len() + dropped
+            points.len()
         );
     }
     Ok(points)

@@ -322,6 +322,30 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         let (rot, tr) = pose_errors(&isometry_from_matrix(&m).unwrap(), &truth);
         assert!(rot < 1.0 && tr < 0.01, "{source}: {rot}°, {tr}");
     }
+    // Missing returns written as (0, 0, 0), as spinning LiDARs write them: left out, said so,
+    // and the same matrix as without them.
+    let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
+    let clean = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("src.xyz"))
+        .arg(&tgt)
+        .output()
+        .unwrap();
+    text.push_str(&"0 0 0\n".repeat(40));
+    std::fs::write(dir.path().join("zeros.xyz"), text).unwrap();
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("zeros.xyz"))
+        .arg(&tgt)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("zeros.xyz: 40 of 840 points are at exactly (0, 0, 0), a scanner's missing returns: left out"),
+        "{err}"
+    );
+    assert_eq!(out.stdout, clean.stdout);
 }
 
 #[test]

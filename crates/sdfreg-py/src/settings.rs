@@ -278,7 +278,11 @@ settings_class! {
     ///     batch: Projection queries about the target's points per Adam step.
     ///     pool: Size of the fixed pool they are drawn from.
     ///     sigma_voxels: Their spread about the target's points, in voxels.
-    ///     lr_scale: The corrections' learning rate relative to the network's.
+    ///     lr_scale: The corrections' learning rate relative to the network's, when trained.
+    ///     plane_fit: The corrections are set in closed form (each corner's distance to the
+    ///         plane of the target points about it) and not trained; False: trained by Adam.
+    ///     prefit_steps: Adam steps of the pre-fit for a local Φ (in place of
+    ///         ``FitSettings.prefit_steps``).
     ///     min_voxel_spacings: A voxel below this many target point spacings is refused.
     ///     max_memory_mib: A grid whose corrections would take more memory than this (MiB,
     ///         80 bytes each) is refused before it is built, with the size it would have had.
@@ -292,6 +296,8 @@ settings_class! {
         pool: i64 = 65536,
         sigma_voxels: f64 = 0.5,
         lr_scale: f64 = 1.0,
+        plane_fit: bool = true,
+        prefit_steps: i64 = 200,
         min_voxel_spacings: f64 = 0.5,
         max_memory_mib: f64 = 1024.0,
     }
@@ -331,11 +337,13 @@ settings_class! {
     /// The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ.
     ///
     /// Args:
-    ///     alternations: Alternations of Φ refinement and LM steps.
+    ///     alternations: Alternations of Φ refinement and LM steps (an object: a global Φ).
+    ///     scene_alternations: The same for a scene (a local Φ).
     ///     lm_steps_per_alternation: LM steps per alternation.
     ///     final_lm_steps: LM steps at most on the final Φ.
     PyCoarseToFineSettings => CoarseToFineSettings as "CoarseToFineSettings", "coarse_to_fine" {
         alternations: i64 = 10,
+        scene_alternations: i64 = 5,
         lm_steps_per_alternation: i64 = 2,
         final_lm_steps: i64 = 10,
     }

@@ -38,6 +38,10 @@ def with_row(cloud: np.ndarray, row: int, value: float) -> np.ndarray:
         (lambda c: with_row(c, 3, -np.inf), "source cloud: point 3 has a non-finite coordinate"),
         (lambda c: c[:9], "source cloud has 9 points; at least 10 are needed"),
         (lambda c: np.zeros((0, 3)), "source cloud has 0 points"),
+        (
+            lambda c: np.vstack([c[:8], np.zeros((40, 3))]),
+            r"source cloud has 8 points besides 40 missing returns at exactly \(0, 0, 0\); at least 10",
+        ),
         (lambda c: np.ones((50, 3)), "source cloud has no extent"),
     ],
 )

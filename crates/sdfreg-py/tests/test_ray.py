@@ -24,7 +24,7 @@ def scans() -> tuple[np.ndarray, list[np.ndarray]]:
         c, s = np.cos(angle), np.sin(angle)
         rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
         sources.append(target[rng.permutation(len(target))] @ rot.T + 0.05 * k)
-    sources.append(np.zeros((3, 3)))  # too few points: its error in its row
+    sources.append(np.full((3, 3), 1.0))  # too few points: its error in its row
     return target, sources
 
 

@@ -34,6 +34,22 @@ pub enum Error {
         /// Points needed.
         min: usize,
     },
+    /// Too few points once the scanner's missing returns, points at exactly (0, 0, 0), are left
+    /// out ([`crate::geometry::cloud::missing_returns`]).
+    #[error(
+        "{role} cloud has {found} points besides {missing} missing returns at exactly (0, 0, 0); \
+         at least {min} are needed"
+    )]
+    TooFewBesidesMissingReturns {
+        /// The cloud.
+        role: Role,
+        /// Points left.
+        found: usize,
+        /// Points at exactly (0, 0, 0) left out.
+        missing: usize,
+        /// Points needed.
+        min: usize,
+    },
     /// A coordinate is NaN or infinite.
     #[error("{role} cloud: point {index} has a non-finite coordinate {point:?}")]
     NonFinite {
@@ -76,6 +92,7 @@ impl Error {
     pub fn role(&self) -> Option<Role> {
         match self {
             Error::TooFewPoints { role, .. }
+            | Error::TooFewBesidesMissingReturns { role, .. }
             | Error::NonFinite { role, .. }
             | Error::NoExtent { role, .. } => Some(*role),
             Error::InvalidMesh(_) => Some(Role::Target),

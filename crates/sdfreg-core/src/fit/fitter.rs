@@ -77,6 +77,10 @@ pub struct SdfFitter {
     /// target point (empty for a global model).
     local_pool: Vec<([f32; 3], [f32; 3])>,
     source_queries: Vec<([f32; 3], [f32; 3])>,
+    /// With corrections from planes: each corner's signed distance to its plane, by slot (NaN
+    /// without one); empty otherwise (a global model, trained corrections, or before
+    /// [`Self::start_local_from_planes`]).
+    plane_distance: Vec<f32>,
     rng: ChaCha8Rng,
     /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
     /// allocation in the loop).
@@ -219,7 +223,7 @@ impl SdfFitter {
             .collect();
         let n_local = local.as_ref().map_or(0, LocalGrid::len);
         let local_pool = match &local {
-            Some(grid) => {
+            Some(grid) if !settings.local.plane_fit => {
                 // Target points moved by a fraction of a voxel (the pool's σ is the scale of the
                 // whole target), each with its nearest target point.
                 let sigma = (settings.local.sigma_voxels * grid.voxel() as f64) as f32;
@@ -242,7 +246,7 @@ impl SdfFitter {
                     })
                     .collect()
             }
-            None => Vec::new(),
+            _ => Vec::new(),
         };
         Self {
             adam: Adam::new(net.num_params()),
@@ -254,6 +258,7 @@ impl SdfFitter {
             pool,
             local_pool,
             source_queries: Vec::new(),
+            plane_distance: Vec::new(),
             rng,
             scratch: Vec::new(),
         }
@@ -331,6 +336,55 @@ impl SdfFitter {
         Some(())
     }
 
+    /// Sets the local corrections in closed form ([`LocalSettings::plane_fit`]): Φ at each
+    /// corner becomes its signed distance to the plane of the target points about it
+    /// ([`LocalGrid::corner_planes`]), the normals turned to agree with each other and, as a
+    /// whole, with the network's gradient ([`LocalGrid::orient_planes`]), so that Φ keeps the
+    /// network's sign where the corrections fade out. Corners without a plane get no
+    /// correction. Later Adam steps train the network alone and the corrections follow it
+    /// ([`Self::train`]). Nothing for a global model. Returns the corners given a plane.
+    ///
+    /// [`LocalSettings::plane_fit`]: crate::field::local_grid::LocalSettings::plane_fit
+    pub fn start_local_from_planes(&mut self) -> usize {
+        let Some(grid) = self.field.grid() else {
+            return 0;
+        };
+        let mut planes = grid.corner_planes(&self.target);
+        let corners = grid.corner_positions();
+        let (_, gradients) = self.field.mlp().eval(&corners, true);
+        grid.orient_planes(&mut planes, &gradients);
+        self.plane_distance = planes
+            .iter()
+            .zip(&corners)
+            .map(|(plane, c)| {
+                plane.map_or(f32::NAN, |(mean, n)| {
+                    (0..3).map(|a| n[a] * (c[a] as f64 - mean[a])).sum::<f64>() as f32
+                })
+            })
+            .collect();
+        self.follow_planes();
+        self.plane_distance.iter().filter(|d| !d.is_nan()).count()
+    }
+
+    /// Sets each correction so that Φ at its corner is its plane distance (none without a
+    /// plane), for the network as it is now.
+    fn follow_planes(&mut self) {
+        let Some(grid) = self.field.grid() else {
+            return;
+        };
+        let h = grid.voxel();
+        let (values, _) = self.field.mlp().eval(&grid.corner_positions(), false);
+        for ((t, d), v) in self
+            .field
+            .theta_mut()
+            .iter_mut()
+            .zip(&self.plane_distance)
+            .zip(values)
+        {
+            *t = if d.is_nan() { 0.0 } else { (d - v) / h };
+        }
+    }
+
     /// Adds moved source points as queries of the coarse-to-fine loss (eq. 18-1).
     pub fn add_source_queries(&mut self, points: &[[f32; 3]]) {
         let new: Vec<([f32; 3], [f32; 3])> = points
@@ -350,11 +404,15 @@ impl SdfFitter {
         }
     }
 
-    /// Runs `steps` Adam steps at learning rate `lr`; returns the loss of the last step.
+    /// Runs `steps` Adam steps at learning rate `lr`; returns the loss of the last step. Local
+    /// corrections set from planes ([`Self::start_local_from_planes`]) then follow the network.
     pub fn train(&mut self, steps: usize, lr: f32) -> FitLoss {
         let mut loss = FitLoss::default();
         for _ in 0..steps {
             loss = self.step(lr);
+        }
+        if steps > 0 && !self.plane_distance.is_empty() {
+            self.follow_planes();
         }
         loss
     }
@@ -501,7 +559,7 @@ impl SdfFitter {
             }
         }
         self.adam.step(self.field.mlp_mut().params_mut(), &grad, lr);
-        if !theta_grad.is_empty() {
+        if !theta_grad.is_empty() && !self.settings.local.plane_fit {
             let lr_local = lr * self.settings.local.lr_scale as f32;
             self.adam_local
                 .step(self.field.theta_mut(), &theta_grad, lr_local);

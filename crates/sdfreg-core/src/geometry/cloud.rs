@@ -53,6 +53,58 @@ pub(crate) fn subsample(
     idx.into_iter().map(|i| points[i]).collect()
 }
 
+/// How many of `points` are scanner missing returns: points at exactly (0, 0, 0), counted only
+/// when there are at least two of them (one point at the origin can be a real vertex; many
+/// identical ones are how spinning LiDARs and range cameras write the beams that returned
+/// nothing, 7 % of each scan of the outdoor pair in `../shared/data/lidar`). Left in, they pile
+/// up in both clouds at the sensor's origin and hold a registration at the identity.
+pub fn missing_returns(points: &[Point3<f64>]) -> usize {
+    let n = points
+        .iter()
+        .filter(|p| p.coords == Vector3::zeros())
+        .count();
+    if n >= 2 {
+        n
+    } else {
+        0
+    }
+}
+
+/// `points` without their [`missing_returns`] (borrowed when there are none).
+pub fn without_missing_returns(points: &[Point3<f64>]) -> std::borrow::Cow<'_, [Point3<f64>]> {
+    if missing_returns(points) == 0 {
+        std::borrow::Cow::Borrowed(points)
+    } else {
+        std::borrow::Cow::Owned(
+            points
+                .iter()
+                .filter(|p| p.coords != Vector3::zeros())
+                .copied()
+                .collect(),
+        )
+    }
+}
+
+/// `points` checked ([`validate`]: indices in errors are the caller's) and without their
+/// [`missing_returns`], which must leave at least `min`.
+pub(crate) fn usable(
+    points: &[Point3<f64>],
+    role: Role,
+    min: usize,
+) -> Result<std::borrow::Cow<'_, [Point3<f64>]>, Error> {
+    validate(points, role, min)?;
+    let kept = without_missing_returns(points);
+    if kept.len() < min {
+        return Err(Error::TooFewBesidesMissingReturns {
+            role,
+            found: kept.len(),
+            missing: points.len() - kept.len(),
+            min,
+        });
+    }
+    Ok(kept)
+}
+
 /// Checks that every coordinate is finite and that there are at least `min` points.
 pub fn validate(points: &[Point3<f64>], role: Role, min: usize) -> Result<(), Error> {
     if let Some(index) = points

@@ -27,7 +27,7 @@ use crate::field::local_grid::{ModelKind, SparseBaked};
 use crate::field::mlp::{Mlp, MlpSettings};
 use crate::fit::fitter::SdfFitter;
 use crate::fit::settings::FitSettings;
-use crate::geometry::cloud::{validate, Normalization};
+use crate::geometry::cloud::{usable, Normalization};
 use crate::geometry::planes::SharedPlanes;
 use crate::pipeline::registration::Registration;
 use crate::pipeline::report::Stage;
@@ -81,12 +81,12 @@ impl SdfModel {
         progress: &(dyn Fn(Stage) + Sync),
     ) -> Result<Self, Error> {
         settings.validate()?;
-        validate(target, Role::Target, MIN_POINTS)?;
+        let target = usable(target, Role::Target, MIN_POINTS)?;
         crate::base::pool::in_pool(settings.threads, || {
             // The registration's random stream, as `register()` draws it, so that a refined
             // registration against the model keeps `register()`'s numbers.
             let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-            let (norm, fitter) = prefit(target, settings, &mut rng, progress)?;
+            let (norm, fitter) = prefit(&target, settings, &mut rng, progress)?;
             let model = Self {
                 norm,
                 fitter,
@@ -185,7 +185,9 @@ impl SdfModel {
     /// grid of `resolution` cells along the target's largest side (over the target points'
     /// bounding box and a margin of 5 % and 2 cells), then Surface Nets (`fast-surface-nets`).
     /// Vertices in the target's units and frame, triangles as vertex indices (outward normals by
-    /// the right-hand rule). `resolution` from 4 to 1024.
+    /// the right-hand rule). `resolution` from 4 to 1024. For a local model (a scene) only the
+    /// triangles within a voxel of the target's points are kept: beyond, Φ is the MLP's alone,
+    /// whose zero level set there is no surface the scan saw.
     pub fn mesh(&self, resolution: usize) -> Result<crate::io::MeshData, Error> {
         use fast_surface_nets::ndshape::{RuntimeShape, Shape};
         use fast_surface_nets::{surface_nets, SurfaceNetsBuffer};
@@ -218,19 +220,47 @@ impl SdfModel {
         let sdf = crate::field::Field::eval_points(self.fitter.field(), &grid, false).0;
         let mut buffer = SurfaceNetsBuffer::default();
         surface_nets(&sdf, &shape, [0; 3], dims.map(|d| d - 1), &mut buffer);
-        let vertices = buffer
+        let unit: Vec<[f32; 3]> = buffer
             .positions
             .iter()
-            .map(|p| {
-                let unit = Vector3::from_fn(|k, _| origin[k] + p[k] as f64 * cell);
-                self.norm.to_user(&unit)
-            })
+            .map(|p| std::array::from_fn(|k| (origin[k] + p[k] as f64 * cell) as f32))
             .collect();
-        let triangles = buffer
+        let mut triangles: Vec<[usize; 3]> = buffer
             .indices
             .chunks_exact(3)
             .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
             .collect();
+        let mut keep: Vec<bool> = vec![true; unit.len()];
+        if let Some(grid) = self.fitter.field().grid() {
+            // A scene's Φ is the MLP's alone beyond the corrections' band: its zero level set
+            // there is no surface the scan saw. Keep the triangles whose centre lies within a
+            // voxel (or two cells) of a target point.
+            let reach = (grid.voxel() as f64).max(2.0 * cell).powi(2) as f32;
+            let tree = self.fitter.tree();
+            triangles.retain(|t| {
+                let c: [f32; 3] =
+                    std::array::from_fn(|k| (unit[t[0]][k] + unit[t[1]][k] + unit[t[2]][k]) / 3.0);
+                tree.nearest_one::<kiddo::SquaredEuclidean>(&c).distance <= reach
+            });
+            keep.fill(false);
+            for t in &triangles {
+                for &i in t {
+                    keep[i] = true;
+                }
+            }
+        }
+        // Vertices no triangle uses are left out, the rest renumbered in order.
+        let mut index = vec![usize::MAX; unit.len()];
+        let mut vertices = Vec::new();
+        for (i, p) in unit.iter().enumerate() {
+            if keep[i] {
+                index[i] = vertices.len();
+                vertices.push(self.norm.to_user(&Vector3::from_fn(|k, _| p[k] as f64)));
+            }
+        }
+        for t in &mut triangles {
+            *t = t.map(|i| index[i]);
+        }
         Ok((vertices, triangles))
     }
 

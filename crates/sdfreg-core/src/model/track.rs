@@ -7,7 +7,7 @@ use nalgebra::{Isometry3, Point3};
 
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
-use crate::geometry::cloud::validate;
+use crate::geometry::cloud::usable;
 use crate::model::sdf_model::SdfModel;
 use crate::pipeline::register::{against_in_pool, check_settings};
 use crate::pipeline::registration::Registration;
@@ -39,11 +39,11 @@ impl SdfModel {
                 .into_iter()
                 .map(|frame| {
                     let start = Instant::now();
-                    let r = validate(frame, Role::Source, MIN_POINTS).and_then(|()| {
+                    let r = usable(frame, Role::Source, MIN_POINTS).and_then(|frame| {
                         against_in_pool(
                             &self.norm,
                             &frozen,
-                            frame,
+                            &frame,
                             Some(&last),
                             settings,
                             false,

@@ -33,7 +33,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::field::Field;
-use crate::geometry::cloud::{subsample, validate, Normalization};
+use crate::geometry::cloud::{subsample, usable, Normalization};
 use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
@@ -66,12 +66,13 @@ pub fn register_with_progress(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     let start = Instant::now();
-    check_inputs(source, init, settings)?;
-    validate(target, Role::Target, MIN_POINTS)?;
+    check_settings(init, settings)?;
+    let source = usable(source, Role::Source, MIN_POINTS)?;
+    let target = usable(target, Role::Target, MIN_POINTS)?;
     let mut r = in_pool(settings.threads, || {
         let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-        let source = subsample(source, settings.max_source_points, &mut rng);
-        let (norm, fitter) = prefit(target, settings, &mut rng, progress)?;
+        let source = subsample(&source, settings.max_source_points, &mut rng);
+        let (norm, fitter) = prefit(&target, settings, &mut rng, progress)?;
         register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)
     })??;
     r.time = start.elapsed();
@@ -90,9 +91,10 @@ pub(crate) fn against<S: Surface>(
     refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
-    check_inputs(source, init, settings)?;
+    check_settings(init, settings)?;
+    let source = usable(source, Role::Source, MIN_POINTS)?;
     in_pool(settings.threads, || {
-        against_in_pool(norm, surface, source, init, settings, refine, progress)
+        against_in_pool(norm, surface, &source, init, settings, refine, progress)
     })?
 }
 
@@ -111,16 +113,6 @@ pub(crate) fn against_in_pool<S: Surface>(
     register_drawn(
         norm, surface, &source, rng, init, settings, refine, progress,
     )
-}
-
-/// Checks the settings, the source and the initial guess.
-fn check_inputs(
-    source: &[Point3<f64>],
-    init: Option<&Isometry3<f64>>,
-    settings: &RegisterSettings,
-) -> Result<(), Error> {
-    check_settings(init, settings)?;
-    validate(source, Role::Source, MIN_POINTS)
 }
 
 /// Checks the settings and the initial guess.

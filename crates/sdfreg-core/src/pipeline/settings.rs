@@ -119,6 +119,7 @@ impl RegisterSettings {
             },
             coarse_to_fine: CoarseToFineSettings {
                 alternations: 0,
+                scene_alternations: 0,
                 lm_steps_per_alternation: 0,
                 final_lm_steps: 5,
             },

@@ -14,7 +14,8 @@ use crate::pipeline::settings::RegisterSettings;
 pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
-/// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps,
+/// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps
+/// (`s.fit.local.prefit_steps` for a local Φ, whose corrections are then set from planes),
 /// reporting [`Stage::Prefit`] to `progress`.
 pub(crate) fn prefit(
     target: &[Point3<f64>],
@@ -28,7 +29,11 @@ pub(crate) fn prefit(
         .map(|p| norm.to_unit(p))
         .collect();
     let mut fitter = SdfFitter::try_new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT)?;
-    let total = s.fit.prefit_steps;
+    let total = if fitter.field().grid().is_some() {
+        s.fit.local.prefit_steps
+    } else {
+        s.fit.prefit_steps
+    };
     let chunk = 50.max(total / 10);
     let mut done = 0;
     while done < total {
@@ -36,6 +41,9 @@ pub(crate) fn prefit(
         fitter.train(n, s.fit.prefit_lr);
         done += n;
         progress(Stage::Prefit(done, total));
+    }
+    if s.fit.local.plane_fit {
+        fitter.start_local_from_planes();
     }
     Ok((norm, fitter))
 }

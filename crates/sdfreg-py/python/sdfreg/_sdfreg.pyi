@@ -146,6 +146,8 @@ class LocalSettings:
         pool: int = 65536,
         sigma_voxels: float = 0.5,
         lr_scale: float = 1.0,
+        plane_fit: bool = True,
+        prefit_steps: int = 200,
         min_voxel_spacings: float = 0.5,
         max_memory_mib: float = 1024.0,
     ) -> LocalSettings: ...
@@ -167,6 +169,10 @@ class LocalSettings:
     def sigma_voxels(self) -> float: ...
     @property
     def lr_scale(self) -> float: ...
+    @property
+    def plane_fit(self) -> bool: ...
+    @property
+    def prefit_steps(self) -> int: ...
     @property
     def min_voxel_spacings(self) -> float: ...
     @property
@@ -219,10 +225,17 @@ class CoarseToFineSettings:
     """The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ."""
 
     def __new__(
-        cls, *, alternations: int = 10, lm_steps_per_alternation: int = 2, final_lm_steps: int = 10
+        cls,
+        *,
+        alternations: int = 10,
+        scene_alternations: int = 5,
+        lm_steps_per_alternation: int = 2,
+        final_lm_steps: int = 10,
     ) -> CoarseToFineSettings: ...
     @property
     def alternations(self) -> int: ...
+    @property
+    def scene_alternations(self) -> int: ...
     @property
     def lm_steps_per_alternation(self) -> int: ...
     @property
