@@ -184,3 +184,30 @@ fn a_scene_mesh_keeps_only_the_surface_near_the_scan() {
     }
     assert!(used.iter().all(|&u| u));
 }
+
+#[test]
+fn a_voxel_in_metres_is_the_voxel_the_model_gets() {
+    // `voxel_size` in the target's units, whatever its extent: the street's model gets that
+    // voxel (to rounding), keeps it through its file, and registers as the default does.
+    let pair = street_pair();
+    let mut s = RegisterSettings::default();
+    s.fit.local.voxel_size = Some(0.8);
+    let model = SdfModel::fit(&pair.target, &s).unwrap();
+    let voxel = model.voxel().unwrap();
+    assert!((voxel - 0.8).abs() < 1e-6, "voxel {voxel} m");
+    let back = SdfModel::from_bytes(&model.to_bytes(), std::path::Path::new("m.sdfm")).unwrap();
+    assert_eq!(back.voxel(), model.voxel());
+    let r = back.register(&pair.source, None, &s).unwrap();
+    let (rot, trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
+    assert!(rot <= 0.1 && trans <= 0.02, "{rot}° {trans} m");
+    // Given, it makes the auto kind local even where the extent would not; `global` wins.
+    let mut small = RegisterSettings::default();
+    small.fit.local.voxel_size = Some(5.0);
+    let few = &pair.target[..4000];
+    assert_eq!(SdfModel::fit(few, &small).unwrap().kind(), ModelKind::Local);
+    small.fit.local.kind = ModelKind::Global;
+    assert_eq!(
+        SdfModel::fit(few, &small).unwrap().kind(),
+        ModelKind::Global
+    );
+}

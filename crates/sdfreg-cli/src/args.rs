@@ -126,6 +126,10 @@ pub struct Common {
     /// larger of 1/128 and 3 target point spacings].
     #[arg(long)]
     pub local_voxel: Option<f64>,
+    /// Voxel side of the local model in the target's units (metres for a LiDAR scan), in place
+    /// of --local-voxel; makes `--model auto` local.
+    #[arg(long, value_name = "SIZE")]
+    pub local_voxel_size: Option<f64>,
 }
 
 impl Common {
@@ -192,6 +196,9 @@ impl Common {
             s.fit.local.cells = ((1.0 / v).round() as usize).max(1);
             s.fit.local.spacings = 0.0;
         }
+        if let Some(v) = self.local_voxel_size {
+            s.fit.local.voxel_size = Some(v);
+        }
         Ok(s)
     }
 }
@@ -204,8 +211,9 @@ impl Common {
             Some(sdfreg_core::Error::InvalidSetting { name, .. }) => *name,
             _ => return e,
         };
-        match (setting, self.local_voxel) {
-            ("fit.local.cells", Some(v)) => e.context(format!("--local-voxel {v}")),
+        match (setting, self.local_voxel, self.local_voxel_size) {
+            ("fit.local.cells", Some(v), _) => e.context(format!("--local-voxel {v}")),
+            ("fit.local.voxel_size", _, Some(v)) => e.context(format!("--local-voxel-size {v}")),
             _ => e,
         }
     }

@@ -867,4 +867,18 @@ fn a_local_voxel_finer_than_the_points_is_refused_at_once_naming_the_flag() {
         assert!(err.contains("use a voxel of at least"), "{command}: {err}");
         assert!(!dir.path().join("m.sdfm").exists());
     }
+    // The same in the target's units, named by its own flag and said in those units.
+    let out = sdfreg()
+        .arg("fit")
+        .arg(dir.path().join("tgt.ply"))
+        .args(["--local-voxel-size", "1e-7"])
+        .args(["-o", dir.path().join("m.sdfm").to_str().unwrap()])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with("sdfreg: --local-voxel-size 0.0000001: invalid setting `fit.local.voxel_size`: a local voxel of 1.000e-7 in the target's units"),
+        "{err}"
+    );
 }

@@ -76,7 +76,7 @@ macro_rules! expose_as_is {
         }
     )*};
 }
-expose_as_is!(usize, u64, bool, f64);
+expose_as_is!(usize, u64, bool, f64, Option<f64>);
 
 impl Expose for sdfreg_core::ModelKind {
     fn expose<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -273,6 +273,10 @@ settings_class! {
     ///         point spacings), ``"global"`` (the MLP alone) or ``"local"``.
     ///     auto_ratio: Extent in point spacings from which ``"auto"`` is local.
     ///     cells: The voxel is at least the target's largest side over this…
+    ///     voxel: The voxel as a fraction of the target's largest side, in place of ``cells``
+    ///         and ``spacings`` (makes ``"auto"`` local); None: from them.
+    ///     voxel_size: The voxel in the target's units (metres for a LiDAR scan), in place of
+    ///         ``cells`` and ``spacings`` (makes ``"auto"`` local); None: from them.
     ///     spacings: …and at least this many target point spacings.
     ///     band: Voxels around each voxel holding target points that also get corrections.
     ///     batch: Projection queries about the target's points per Adam step.
@@ -290,6 +294,8 @@ settings_class! {
         kind: &str = "auto",
         auto_ratio: f64 = 400.0,
         cells: i64 = 128,
+        voxel: Option<f64> = None,
+        voxel_size: Option<f64> = None,
         spacings: f64 = 3.0,
         band: i64 = 1,
         batch: i64 = 2048,

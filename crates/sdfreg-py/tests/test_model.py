@@ -204,6 +204,25 @@ def test_a_local_model_is_chosen_by_name_and_round_trips(pair) -> None:
     assert rot < 1.0 and trans < 0.01, (rot, trans)
 
 
+def test_a_local_voxel_in_the_targets_units(pair) -> None:
+    """``LocalSettings(voxel_size=…)``: the voxel in the target's units, whatever its extent; it
+    makes ``"auto"`` local, survives pickling, and one finer than the points is refused naming
+    ``fit.local.voxel_size``."""
+    _, target, _ = pair
+    extent = float((target.max(0) - target.min(0)).max())
+    for units in (1.0, 1000.0):  # the same cloud in metres and in millimetres
+        size = 0.05 * extent * units
+        model = sdfreg.fit(target * units, fit=sdfreg.FitSettings(
+            prefit_steps=50, local=sdfreg.LocalSettings(voxel_size=size)))
+        assert model.kind == "local" and abs(model.voxel - size) < 1e-6 * size, (model.voxel, size)
+        back = pickle.loads(pickle.dumps(model))
+        assert back.voxel == model.voxel and back.local_parameters == model.local_parameters
+    with pytest.raises(ValueError, match=r"invalid setting `fit.local.voxel_size`: a local voxel of"):
+        sdfreg.fit(target, fit=sdfreg.FitSettings(local=sdfreg.LocalSettings(voxel_size=1e-7 * extent)))
+    with pytest.raises(ValueError, match="fit.local.voxel_size"):
+        sdfreg.LocalSettings(voxel_size=-1.0)
+
+
 def test_a_local_grid_too_fine_or_too_large_is_a_value_error(pair) -> None:
     """A voxel below half the point spacing, or a grid above ``max_memory_mib``, is refused
     with a ``ValueError`` naming the setting and saying what it would have been."""

@@ -76,6 +76,14 @@ pub struct LocalSettings {
     pub auto_ratio: f64,
     /// The voxel side is at least the target's largest side over this. Default 128.
     pub cells: usize,
+    /// The voxel side as a fraction of the target's largest side, in place of `cells` and
+    /// `spacings`; a voxel given makes the `auto` kind local. Default none. The fit sets it
+    /// from [`Self::voxel_size`].
+    pub voxel: Option<f64>,
+    /// The voxel side in the target's units (metres for a LiDAR scan), in place of `cells` and
+    /// `spacings`: the fit sets [`Self::voxel`] from it and the target's largest side. Default
+    /// none.
+    pub voxel_size: Option<f64>,
     /// … and at least this many target point spacings. Default 3.
     pub spacings: f64,
     /// Voxels around each voxel holding target points that also get parameters. Default 1.
@@ -124,6 +132,8 @@ impl Default for LocalSettings {
             kind: ModelKind::Auto,
             auto_ratio: 400.0,
             cells: 128,
+            voxel: None,
+            voxel_size: None,
             spacings: 3.0,
             band: 1,
             batch: 2048,
@@ -153,6 +163,12 @@ impl LocalSettings {
         use crate::base::check;
         check::positive("fit.local.auto_ratio", self.auto_ratio)?;
         check::count_at_least("fit.local.cells", self.cells, 1)?;
+        if let Some(v) = self.voxel {
+            check::positive("fit.local.voxel", v)?;
+        }
+        if let Some(v) = self.voxel_size {
+            check::positive("fit.local.voxel_size", v)?;
+        }
         check::non_negative("fit.local.spacings", self.spacings)?;
         check::count_at_least("fit.local.batch", self.batch, 1)?;
         check::count_at_least("fit.local.pool", self.pool, 1)?;
@@ -160,6 +176,16 @@ impl LocalSettings {
         check::positive("fit.local.lr_scale", self.lr_scale)?;
         check::non_negative("fit.local.min_voxel_spacings", self.min_voxel_spacings)?;
         check::positive("fit.local.max_memory_mib", self.max_memory_mib)
+    }
+
+    /// These settings for a target whose largest side is `scale` (its units): [`Self::voxel`]
+    /// set from [`Self::voxel_size`] when that is given.
+    pub fn for_extent(&self, scale: f64) -> Self {
+        let mut s = self.clone();
+        if let Some(v) = s.voxel_size {
+            s.voxel = Some(v / scale);
+        }
+        s
     }
 
     /// The grid of the local part for the `target` points (unit frame, median point spacing
@@ -176,17 +202,30 @@ impl LocalSettings {
         let Some(voxel) = self.voxel(spacing) else {
             return Ok(None);
         };
-        let bad = |reason: String| crate::base::error::Error::InvalidSetting {
-            name: "fit.local.cells",
-            reason,
+        // The setting the voxel came from.
+        let name = if self.voxel_size.is_some() {
+            "fit.local.voxel_size"
+        } else if self.voxel.is_some() {
+            "fit.local.voxel"
+        } else {
+            "fit.local.cells"
+        };
+        let bad = |reason: String| crate::base::error::Error::InvalidSetting { name, reason };
+        // Lengths in the unit the voxel was asked in: the target's (voxel_size), or a fraction
+        // of its largest side.
+        let (to, unit) = match (self.voxel_size, self.voxel) {
+            (Some(size), Some(v)) => (size / v, "in the target's units"),
+            _ => (1.0, "of the target's largest side"),
         };
         if voxel < self.min_voxel_spacings * spacing {
             return Err(bad(format!(
-                "a local voxel of {voxel:.3e} of the target's largest side is below \
-                 fit.local.min_voxel_spacings = {} of its point spacing ({spacing:.3e}): each \
-                 point would get voxels of its own; use a voxel of at least {:.3e}",
+                "a local voxel of {:.3e} {unit} is below fit.local.min_voxel_spacings = {} of \
+                 its point spacing ({:.3e}): each point would get voxels of its own; use a \
+                 voxel of at least {:.3e}",
+                voxel * to,
                 self.min_voxel_spacings,
-                self.min_voxel_spacings * spacing
+                spacing * to,
+                self.min_voxel_spacings * spacing * to
             )));
         }
         let plan = LocalGrid::planned(target, voxel, self.band);
@@ -194,9 +233,10 @@ impl LocalSettings {
         let mib = corners as f64 * BYTES_PER_CORRECTION / (1024.0 * 1024.0);
         if mib > self.max_memory_mib {
             return Err(bad(format!(
-                "a local voxel of {voxel:.3e} of the target's largest side makes {corners} \
-                 corrections (≈ {mib:.1} MiB), above fit.local.max_memory_mib = {} MiB; use a \
-                 larger voxel or raise the ceiling",
+                "a local voxel of {:.3e} {unit} makes {corners} corrections (≈ {mib:.1} MiB), \
+                 above fit.local.max_memory_mib = {} MiB; use a larger voxel or raise the \
+                 ceiling",
+                voxel * to,
                 self.max_memory_mib
             )));
         }
@@ -206,6 +246,9 @@ impl LocalSettings {
     /// The voxel side for a target of median point spacing `spacing` (unit frame), or `None`
     /// when Φ is the MLP alone.
     pub fn voxel(&self, spacing: f64) -> Option<f64> {
+        if let Some(v) = self.voxel {
+            return (self.kind != ModelKind::Global).then_some(v);
+        }
         let local = match self.kind {
             ModelKind::Global => false,
             ModelKind::Local => true,

@@ -28,7 +28,9 @@ pub(crate) fn prefit(
         .iter()
         .map(|p| norm.to_unit(p))
         .collect();
-    let mut fitter = SdfFitter::try_new(unit, &s.mlp, &s.fit, s.seed ^ FIT_SEED_SALT)?;
+    let mut fit = s.fit.clone();
+    fit.local = fit.local.for_extent(norm.scale);
+    let mut fitter = SdfFitter::try_new(unit, &s.mlp, &fit, s.seed ^ FIT_SEED_SALT)?;
     let total = if fitter.field().grid().is_some() {
         s.fit.local.prefit_steps
     } else {

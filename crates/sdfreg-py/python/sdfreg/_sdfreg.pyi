@@ -140,6 +140,8 @@ class LocalSettings:
         kind: str = "auto",
         auto_ratio: float = 400.0,
         cells: int = 128,
+        voxel: Optional[float] = None,
+        voxel_size: Optional[float] = None,
         spacings: float = 3.0,
         band: int = 1,
         batch: int = 2048,
@@ -157,6 +159,10 @@ class LocalSettings:
     def auto_ratio(self) -> float: ...
     @property
     def cells(self) -> int: ...
+    @property
+    def voxel(self) -> Optional[float]: ...
+    @property
+    def voxel_size(self) -> Optional[float]: ...
     @property
     def spacings(self) -> float: ...
     @property
