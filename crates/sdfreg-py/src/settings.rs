@@ -279,9 +279,10 @@ settings_class! {
     ///         ``cells`` and ``spacings`` (makes ``"auto"`` local); None: from them.
     ///     spacings: …and at least this many target point spacings.
     ///     band: Voxels around each voxel holding target points that also get corrections.
-    ///     batch: Projection queries about the target's points per Adam step.
-    ///     pool: Size of the fixed pool they are drawn from.
-    ///     sigma_voxels: Their spread about the target's points, in voxels.
+    ///     batch: Projection queries about the target's points per Adam step (when the
+    ///         corrections are trained: ``plane_fit=False``).
+    ///     pool: Size of the fixed pool they are drawn from (``plane_fit=False``).
+    ///     sigma_voxels: Their spread about the target's points, in voxels (``plane_fit=False``).
     ///     lr_scale: The corrections' learning rate relative to the network's, when trained.
     ///     plane_fit: The corrections are set in closed form (each corner's distance to the
     ///         plane of the target points about it) and not trained; False: trained by Adam.

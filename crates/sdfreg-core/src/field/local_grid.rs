@@ -12,9 +12,12 @@
 //! voxels near the target's points only: a hash map from corner to slot, so memory grows with
 //! the occupied surface, not the bounding box. A corner that holds no parameter counts as 0, so
 //! the correction fades to nothing one band of voxels away from the target, and Φ stays
-//! continuous. The corrections are fitted with the MLP by the same self-supervised losses
-//! ([`crate::fit::fitter`]), with extra projection queries scattered about the target's points at
-//! the voxel's scale.
+//! continuous. By default the corrections are set in closed form after the MLP's pre-fit: Φ at
+//! each corner is its signed distance to the plane of the target points about it
+//! ([`LocalGrid::corner_planes`], oriented by [`LocalGrid::orient_planes`]), and stays so while
+//! the MLP trains ([`LocalSettings::plane_fit`]). Trained instead by the MLP's self-supervised
+//! losses ([`crate::fit::fitter`], with extra projection queries about the target's points at the
+//! voxel's scale), they stayed a third to two thirds of a voxel off the points of real scans.
 //!
 //! Everything is in the target's unit frame (largest bounding-box side 1); `h` is the voxel side.
 //! [`LocalSettings`] says when the local kind is used and how fine its voxels are.
@@ -88,11 +91,12 @@ pub struct LocalSettings {
     pub spacings: f64,
     /// Voxels around each voxel holding target points that also get parameters. Default 1.
     pub band: usize,
-    /// Projection queries about the target's points per Adam step. Default 2048.
+    /// Projection queries about the target's points per Adam step, when the corrections are
+    /// trained (`plane_fit` false). Default 2048.
     pub batch: usize,
-    /// Size of the fixed pool they are drawn from. Default 65536.
+    /// Size of the fixed pool they are drawn from (`plane_fit` false). Default 65536.
     pub pool: usize,
-    /// Their perturbation's standard deviation, in voxels. Default 0.5.
+    /// Their perturbation's standard deviation, in voxels (`plane_fit` false). Default 0.5.
     pub sigma_voxels: f64,
     /// The corrections' Adam learning rate relative to the network's, when they are trained
     /// (`plane_fit` false). Default 1.

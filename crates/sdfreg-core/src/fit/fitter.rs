@@ -10,6 +10,10 @@
 //! Perturbation queries are target points moved by `N(0, σ²)`, with σ per point the distance
 //! to its k-th neighbour (Neural-Pull); nearest target points come from a k-d tree (kiddo).
 //!
+//! A local Φ's corrections (scenes) are not trained by default: the network trains alone, then
+//! [`SdfFitter::start_local_from_planes`] sets them in closed form and later steps keep them
+//! following the network.
+//!
 //! Entry point: [`SdfFitter`].
 
 use std::num::NonZeroUsize;
