@@ -355,7 +355,7 @@ impl SdfFitter {
         };
         let mut planes = grid.corner_planes(&self.target);
         let corners = grid.corner_positions();
-        let (_, gradients) = self.field.mlp().eval(&corners, true);
+        let (values, gradients) = self.field.mlp().eval(&corners, true);
         grid.orient_planes(&mut planes, &gradients);
         self.plane_distance = planes
             .iter()
@@ -366,7 +366,7 @@ impl SdfFitter {
                 })
             })
             .collect();
-        self.follow_planes();
+        self.set_corrections(&values);
         self.plane_distance.iter().filter(|d| !d.is_nan()).count()
     }
 
@@ -376,8 +376,16 @@ impl SdfFitter {
         let Some(grid) = self.field.grid() else {
             return;
         };
-        let h = grid.voxel();
         let (values, _) = self.field.mlp().eval(&grid.corner_positions(), false);
+        self.set_corrections(&values);
+    }
+
+    /// Sets each correction so that Φ at its corner is its plane distance, given the network's
+    /// `values` at the corners (by slot).
+    fn set_corrections(&mut self, values: &[f32]) {
+        let Some(h) = self.field.grid().map(LocalGrid::voxel) else {
+            return;
+        };
         for ((t, d), v) in self
             .field
             .theta_mut()
@@ -484,6 +492,7 @@ impl SdfFitter {
             wsurf,
         } = *batch;
         let field = &self.field;
+        let train_local = self.trains_local();
         let mlp = field.mlp();
         let n_params = mlp.num_params();
 
@@ -520,7 +529,9 @@ impl SdfFitter {
                         }
                         dphi[j] = dp;
                         dgrad[j] = dg;
-                        field.local_adjoint(&q.x, dp, &dg, local_grad);
+                        if train_local {
+                            field.local_adjoint(&q.x, dp, &dg, local_grad);
+                        }
                     }
                     mlp.backward_block(ws, &dphi, &dgrad, grad);
                     (total, proj)
@@ -534,7 +545,9 @@ impl SdfFitter {
                             field.add_local(&block[j], &mut phi, &mut [0.0; 3]);
                             total += (wsurf * phi.abs()) as f64;
                             let d = wsurf * phi.signum();
-                            field.local_adjoint(&block[j], d, &[0.0; 3], local_grad);
+                            if train_local {
+                                field.local_adjoint(&block[j], d, &[0.0; 3], local_grad);
+                            }
                             d
                         })
                         .collect();
@@ -545,12 +558,22 @@ impl SdfFitter {
             .collect()
     }
 
+    /// Whether Adam trains the local corrections: a local Φ whose corrections are not set from
+    /// planes (those are held, and their gradient is not computed).
+    fn trains_local(&self) -> bool {
+        self.field.grid().is_some() && !self.settings.local.plane_fit
+    }
+
     /// Sums the blocks' losses and gradients in block order (so the step does not depend on
     /// the number of threads) and takes the Adam step at `lr`.
     fn apply(&mut self, parts: Vec<(f64, f64)>, lr: f32) -> FitLoss {
         let n_params = self.field.mlp().num_params();
         let mut grad = vec![0.0f32; n_params];
-        let mut theta_grad = vec![0.0f32; self.field.theta().len()];
+        let mut theta_grad = if self.trains_local() {
+            vec![0.0f32; self.field.theta().len()]
+        } else {
+            Vec::new()
+        };
         let mut loss = FitLoss::default();
         for ((total, proj), (_, g, lg)) in parts.into_iter().zip(&self.scratch) {
             loss.total += total;
@@ -563,7 +586,7 @@ impl SdfFitter {
             }
         }
         self.adam.step(self.field.mlp_mut().params_mut(), &grad, lr);
-        if !theta_grad.is_empty() && !self.settings.local.plane_fit {
+        if !theta_grad.is_empty() {
             let lr_local = lr * self.settings.local.lr_scale as f32;
             self.adam_local
                 .step(self.field.theta_mut(), &theta_grad, lr_local);
