@@ -54,7 +54,18 @@ pub fn registration_json(r: &Registration) -> serde_json::Value {
         "free_motions": free_motions_json(&r.degeneracy),
         "stages": r.stages,
         "time_ms": r.time.as_secs_f64() * 1e3,
+        "stage_ms": stage_ms(r),
     })
+}
+
+/// Each stage's wall time, milliseconds (`Registration::stage_times`).
+fn stage_ms(r: &Registration) -> serde_json::Value {
+    r.stage_times
+        .named()
+        .iter()
+        .map(|(name, t)| (name.to_string(), serde_json::json!(t.as_secs_f64() * 1e3)))
+        .collect::<serde_json::Map<_, _>>()
+        .into()
 }
 
 /// The one-line summary `register` prints on stderr.

@@ -110,6 +110,25 @@ fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     let polish = v["stages"]["polish"]["result"].as_str().unwrap();
     assert!(["applied", "snapped"].contains(&polish), "{polish}");
     assert!(v["stages"]["final_lm"]["change"]["rotation_deg"].is_f64());
+    // Where the time went: every stage timed, the pre-fit and the alternations not zero, and
+    // the stages within the call's own time.
+    let ms: std::collections::BTreeMap<String, f64> =
+        serde_json::from_value(v["stage_ms"].clone()).unwrap();
+    let names = [
+        "prefit",
+        "initial",
+        "coarse_to_fine",
+        "final_lm",
+        "polish",
+        "shift_search",
+        "measure",
+        "other_run",
+    ];
+    assert_eq!(ms.len(), names.len(), "{ms:?}");
+    assert!(ms["prefit"] > 0.0 && ms["coarse_to_fine"] > 0.0, "{ms:?}");
+    assert_eq!(ms["other_run"], 0.0, "no robust re-run ran: {ms:?}");
+    let total: f64 = names.iter().map(|n| ms[*n]).sum();
+    assert!(total <= v["time_ms"].as_f64().unwrap(), "{ms:?} {v}");
     assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"));
     let moved = sdfreg_core::io::read_point_cloud(&aligned).unwrap();
     assert_eq!(moved.len(), 800);

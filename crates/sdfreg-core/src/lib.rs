@@ -107,7 +107,7 @@ pub use pipeline::register::{register, register_with_progress};
 pub use pipeline::registration::Registration;
 pub use pipeline::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RobustReport, ShiftSearchReport, Stage, Stages,
+    RobustReport, ShiftSearchReport, Stage, StageTimes, Stages,
 };
 pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
 pub use pipeline::settings::{RegisterSettings, MIN_POINTS};

@@ -2,6 +2,7 @@
 
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 
 use crate::convert;
 
@@ -106,6 +107,19 @@ impl PyRegistration {
     #[getter]
     fn time_s(&self) -> f64 {
         self.0.time.as_secs_f64()
+    }
+
+    /// Wall time of each stage, seconds, as a dict in pipeline order: ``prefit`` (fitting Φ on
+    /// the target; 0 against a model), ``initial``, ``coarse_to_fine``, ``final_lm``,
+    /// ``polish``, ``shift_search``, ``measure``, and ``other_run`` (the robust re-run's run
+    /// that was not returned; 0 when none ran).
+    #[getter]
+    fn stage_times_s<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let times = PyDict::new(py);
+        for (name, t) in self.0.stage_times.named() {
+            times.set_item(name, t.as_secs_f64())?;
+        }
+        Ok(times)
     }
 
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {

@@ -348,11 +348,13 @@ settings_class! {
     ///     scene_alternations: The same for a scene (a local Φ).
     ///     lm_steps_per_alternation: LM steps per alternation.
     ///     final_lm_steps: LM steps at most on the final Φ.
+    ///     final_lm_baked: The final LM reads a stored object model's Φ baked into its grid.
     PyCoarseToFineSettings => CoarseToFineSettings as "CoarseToFineSettings", "coarse_to_fine" {
         alternations: i64 = 10,
         scene_alternations: i64 = 5,
         lm_steps_per_alternation: i64 = 2,
         final_lm_steps: i64 = 10,
+        final_lm_baked: bool = false,
     }
 }
 
@@ -390,6 +392,7 @@ settings_class! {
     ///     scene_prior_weight: The same when Φ is local (a scene).
     ///     tolerance: A pass has converged when its step is below this.
     ///     snap: Try snapping onto the nearest target points (kept when the source lies on them).
+    ///     target_planes: An object's planes at the target's points (kept by a model), not at the source's.
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -401,6 +404,7 @@ settings_class! {
         scene_prior_weight: f64 = 1e-6,
         tolerance: f64 = 1e-7,
         snap: bool = true,
+        target_planes: bool = false,
     }
 }
 

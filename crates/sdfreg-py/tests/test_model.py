@@ -36,6 +36,12 @@ def test_registering_against_a_model_is_accurate_and_refining_equals_the_cloud(p
     direct = sdfreg.register(source, target, **QUICK)
     np.testing.assert_array_equal(refined.transformation, direct.transformation)
     assert refined.stages == direct.stages
+    # Where the time went: against a model nothing is pre-fitted; a full call pre-fits Φ.
+    names = ["prefit", "initial", "coarse_to_fine", "final_lm", "polish", "shift_search",
+             "measure", "other_run"]
+    assert list(frozen.stage_times_s) == list(direct.stage_times_s) == names
+    assert frozen.stage_times_s["prefit"] == 0.0 and direct.stage_times_s["prefit"] > 0.0
+    assert sum(direct.stage_times_s.values()) <= direct.time_s
     with pytest.raises(ValueError, match="refine: False needs an SdfModel target"):
         sdfreg.register(source, target, refine=False, **QUICK)
 
@@ -175,6 +181,7 @@ def test_a_registration_pickles_exactly() -> None:
     np.testing.assert_array_equal(back.free_motions[0].axis, r.free_motions[0].axis)
     assert (back.stages, back.fitness, back.cost, back.time_s, back.stop_reason) == (
         r.stages, r.fitness, r.cost, r.time_s, r.stop_reason)
+    assert back.stage_times_s == r.stage_times_s and r.stage_times_s["prefit"] > 0.0
     with pytest.raises(ValueError, match="not a pickled Registration"):
         sdfreg._sdfreg._registration_from_json("{}")
 

@@ -1,12 +1,77 @@
 //! The worker pool every parallel stage runs in: a local rayon pool, never the global one.
+//!
+//! Each calling thread keeps its pools (one per thread count asked for) for its next calls: a
+//! pool of two threads takes about 2.5 ms to start and warm up, as much as a whole tracked
+//! frame, and a robot calls once per frame. Per calling thread, so that the plain worker
+//! threads of a batch ([`crate::register_many`]), each asking for one thread, still run side
+//! by side; the pools end with their thread. A forked child (Python's `multiprocessing` on
+//! Linux) inherits the pools but not their threads: it leaves them alone and starts its own.
+
+use std::cell::RefCell;
+use std::sync::Arc;
+
+use rayon::ThreadPool;
 
 use crate::base::error::Error;
 
-/// Runs `f` in a pool of `threads` workers (0 = one per core), never rayon's global one.
+/// A thread's pools, by the thread count they were asked for, and the process that made them.
+#[derive(Default)]
+struct Pools {
+    process: u32,
+    pools: Vec<(usize, Arc<ThreadPool>)>,
+}
+
+thread_local! {
+    /// This thread's pools.
+    static POOLS: RefCell<Pools> = RefCell::new(Pools::default());
+}
+
+/// Runs `f` in a pool of `threads` workers (0 = one per core), never rayon's global one: the
+/// calling thread's pool of that size, made on its first call.
 pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> Result<R, Error> {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| Error::ThreadPool(e.to_string()))?;
+    let pool = pool(threads)?;
     Ok(pool.install(f))
+}
+
+/// The calling thread's pool of `threads` workers, made when first asked for.
+fn pool(threads: usize) -> Result<Arc<ThreadPool>, Error> {
+    let process = std::process::id();
+    let kept = POOLS.with_borrow_mut(|kept| {
+        if kept.process != process {
+            // Made by the parent of a fork: their threads are not in this process, and
+            // dropping them would wait on those threads. Left alone.
+            std::mem::forget(std::mem::take(&mut kept.pools));
+            kept.process = process;
+        }
+        kept.pools
+            .iter()
+            .find(|(n, _)| *n == threads)
+            .map(|(_, p)| p.clone())
+    });
+    if let Some(pool) = kept {
+        return Ok(pool);
+    }
+    let pool = Arc::new(
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| Error::ThreadPool(e.to_string()))?,
+    );
+    POOLS.with_borrow_mut(|kept| kept.pools.push((threads, pool.clone())));
+    Ok(pool)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_thread_keeps_one_pool_per_size_and_other_threads_get_their_own() {
+        let workers = |n| in_pool(n, rayon::current_num_threads).unwrap();
+        assert_eq!((workers(1), workers(3)), (1, 3));
+        let here = pool(3).unwrap();
+        assert!(Arc::ptr_eq(&here, &pool(3).unwrap()));
+        let there = std::thread::spawn(|| pool(3).unwrap()).join().unwrap();
+        assert!(!Arc::ptr_eq(&here, &there));
+    }
 }

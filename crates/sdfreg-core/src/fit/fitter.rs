@@ -89,6 +89,8 @@ pub struct SdfFitter {
     /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
     /// allocation in the loop).
     scratch: Vec<BlockScratch>,
+    /// The target's median point spacing, computed when first asked for.
+    spacing: std::sync::OnceLock<f64>,
 }
 
 /// One block's workspace, network gradient and local gradient `(slot, ∂L/∂θ)`.
@@ -265,7 +267,16 @@ impl SdfFitter {
             plane_distance: Vec::new(),
             rng,
             scratch: Vec::new(),
+            spacing: std::sync::OnceLock::new(),
         }
+    }
+
+    /// The target points' median spacing (distance to the nearest other target point, unit
+    /// frame; [`target_spacing`]), computed once.
+    pub(crate) fn spacing(&self) -> f64 {
+        *self
+            .spacing
+            .get_or_init(|| target_spacing(&self.target, &self.tree))
     }
 
     /// The current network (Φ's global part).

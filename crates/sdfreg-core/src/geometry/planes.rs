@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 use kiddo::SquaredEuclidean;
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 
-use crate::geometry::tree::{target_spacing, Tree};
+use crate::geometry::tree::Tree;
 
 /// What a source point's last local plane was made of, so that the next iterations, which move
 /// the point by ever smaller steps, need neither the k-d tree nor the plane fit while its
@@ -177,18 +177,15 @@ fn point_plane(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<P
 #[derive(Debug)]
 pub(crate) struct TargetPlanes {
     k: usize,
-    /// The target's median point spacing ([`target_spacing`]), computed once.
-    pub(crate) spacing: f64,
     planes: Vec<OnceLock<Option<Plane>>>,
 }
 
 impl TargetPlanes {
     /// No plane computed yet, for the `target` points (and their `tree`) and planes of `k`
     /// points.
-    pub(crate) fn new(target: &[[f32; 3]], tree: &Tree, k: usize) -> Self {
+    pub(crate) fn new(target: &[[f32; 3]], k: usize) -> Self {
         Self {
             k: k.max(3),
-            spacing: target_spacing(target, tree),
             planes: (0..target.len()).map(|_| OnceLock::new()).collect(),
         }
     }
@@ -246,14 +243,9 @@ impl Clone for SharedPlanes {
 impl SharedPlanes {
     /// The planes of the `target` points of `k` points each: the kept ones when they fit,
     /// else new ones (kept from now on).
-    pub(crate) fn get(
-        &self,
-        target: &[[f32; 3]],
-        tree: &Tree,
-        k: usize,
-    ) -> std::sync::Arc<TargetPlanes> {
+    pub(crate) fn get(&self, target: &[[f32; 3]], k: usize) -> std::sync::Arc<TargetPlanes> {
         let n = target.len();
-        let fresh = || std::sync::Arc::new(TargetPlanes::new(target, tree, k));
+        let fresh = || std::sync::Arc::new(TargetPlanes::new(target, k));
         let Ok(mut kept) = self.0.lock() else {
             return fresh();
         };

@@ -21,6 +21,8 @@ pub(crate) struct MeshSurface {
     field: MeshField,
     target: Vec<[f32; 3]>,
     tree: Tree,
+    /// The samples' median spacing, computed when first asked for.
+    spacing: std::sync::OnceLock<f64>,
 }
 
 impl Surface for MeshSurface {
@@ -37,6 +39,11 @@ impl Surface for MeshSurface {
     }
     fn tree(&self) -> &Tree {
         &self.tree
+    }
+    fn spacing(&self) -> f64 {
+        *self
+            .spacing
+            .get_or_init(|| crate::geometry::tree::target_spacing(&self.target, &self.tree))
     }
     fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
     fn refine(&mut self, _: usize, _: f32) {}
@@ -96,6 +103,7 @@ impl MeshModel {
                 field,
                 target,
                 tree,
+                spacing: std::sync::OnceLock::new(),
             },
             grid: std::sync::Arc::new(grid),
         })

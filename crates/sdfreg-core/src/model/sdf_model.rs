@@ -58,7 +58,8 @@ pub struct SdfModel {
     /// [`SdfModel::fit`], or by the first registration of a loaded model; derived from Φ
     /// alone, so it is not stored in files.
     pub(crate) grid: OnceLock<Arc<BakedGrid>>,
-    /// A scene's polish planes at the target's points, computed by the registrations as they
+    /// The polish planes at the target's points (a scene's, or an object's with
+    /// [`crate::PolishSettings::target_planes`]), computed by the registrations as they
     /// need them and kept for the next ones.
     pub(crate) planes: SharedPlanes,
     /// A local model's Φ at the corners of its grid ([`crate::field::local_grid::SparseBaked`]), made

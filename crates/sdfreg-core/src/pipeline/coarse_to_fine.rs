@@ -43,6 +43,15 @@ pub struct CoarseToFineSettings {
     pub lm_steps_per_alternation: usize,
     /// LM steps at most on the final, frozen Φ. Default 10.
     pub final_lm_steps: usize,
+    /// The final LM reads a frozen Φ (a stored model's) baked into its grid
+    /// ([`crate::field::baked`]: trilinear value and gradient, ≈ 30 times cheaper than the MLP)
+    /// instead of Φ itself; the polish that follows lays the source onto the target's points.
+    /// A refined Φ (a full call) is never baked, and a local Φ (a scene) is read at its own
+    /// corners already, whose cells are far finer than the grid's: there it reads Φ either
+    /// way. Default false;
+    /// [`crate::RegisterSettings::tracking`] sets it.
+    #[serde(default)]
+    pub final_lm_baked: bool,
 }
 
 impl Default for CoarseToFineSettings {
@@ -52,6 +61,7 @@ impl Default for CoarseToFineSettings {
             scene_alternations: 5,
             lm_steps_per_alternation: 2,
             final_lm_steps: 10,
+            final_lm_baked: false,
         }
     }
 }
@@ -160,12 +170,18 @@ pub(crate) fn alternate<S: Surface>(
                 .collect();
         }
     }
-    let scored: Vec<(f64, Isometry3<f64>)> = lms
-        .iter()
-        .map(|(_, lm)| (nn_score(fit.tree(), source, &lm.pose, tau2), lm.pose))
-        .collect();
     let survivors = lms.len();
-    let (winner, lm) = lms.swap_remove(least_motion(&scored, tie));
+    // One hypothesis (an initial guess, tracking) wins without being scored.
+    let pick = if lms.len() == 1 {
+        0
+    } else {
+        let scored: Vec<(f64, Isometry3<f64>)> = lms
+            .iter()
+            .map(|(_, lm)| (nn_score(fit.tree(), source, &lm.pose, tau2), lm.pose))
+            .collect();
+        least_motion(&scored, tie)
+    };
+    let (winner, lm) = lms.swap_remove(pick);
     Alternated {
         lm,
         survivors,
@@ -174,7 +190,8 @@ pub(crate) fn alternate<S: Surface>(
 }
 
 /// LM on the frozen Φ from `lm`'s pose until converged, at most
-/// [`CoarseToFineSettings::final_lm_steps`] steps, with the policy's final κ.
+/// [`CoarseToFineSettings::final_lm_steps`] steps, with the policy's final κ: Φ itself, or
+/// with [`CoarseToFineSettings::final_lm_baked`] the grid a frozen global Φ is baked into.
 pub(crate) fn final_lm<S: Surface>(
     fit: &S,
     source: &[Point3<f64>],
@@ -182,8 +199,21 @@ pub(crate) fn final_lm<S: Surface>(
     c: &CoarseToFineSettings,
     policy: KernelPolicy,
 ) -> StopReason {
-    let kernel = kernel_at(fit.phi(), source, &lm.pose, policy, policy.kappa_end());
-    lm.run(fit.phi(), source, kernel, c.final_lm_steps)
+    fn on<F: Field>(
+        phi: &F,
+        source: &[Point3<f64>],
+        lm: &mut Lm,
+        steps: usize,
+        policy: KernelPolicy,
+    ) -> StopReason {
+        let kernel = kernel_at(phi, source, &lm.pose, policy, policy.kappa_end());
+        lm.run(phi, source, kernel, steps)
+    }
+    if c.final_lm_baked && !fit.is_local() {
+        on(fit.coarse(), source, lm, c.final_lm_steps, policy)
+    } else {
+        on(fit.phi(), source, lm, c.final_lm_steps, policy)
+    }
 }
 
 /// The policy's kernel for `source` (unit frame) moved by `pose`, with `kappa`: Φ is evaluated

@@ -36,7 +36,7 @@ use crate::base::check;
 use crate::base::error::Error;
 use crate::geometry::planes::{local_plane, point_normal, TargetPlanes};
 use crate::geometry::se3::{exp_se3, log_se3};
-use crate::geometry::tree::{median_nn, target_spacing, Tree};
+use crate::geometry::tree::{median_nn, Tree};
 use crate::solve::kernel::{inlier_scale, mad_scale, Kernel};
 use crate::solve::lm::{jacobian_row, StopReason};
 
@@ -104,6 +104,14 @@ pub struct PolishSettings {
     /// Try the snap onto the nearest target points (kept only when the source lies on them).
     /// Default true; tracking turns it off (frames are never copies of the target).
     pub snap: bool,
+    /// Against an object (a global Φ), fit the planes at the target's points, once per target
+    /// and kept by a stored model across registrations, as a scene's always are: one
+    /// nearest-point query a source point and iteration instead of a `k`-nearest query and a
+    /// plane fit. Default false (planes at the moved
+    /// source points average a noisy target better); [`crate::RegisterSettings::tracking`]
+    /// sets it.
+    #[serde(default)]
+    pub target_planes: bool,
 }
 
 impl Default for PolishSettings {
@@ -119,6 +127,7 @@ impl Default for PolishSettings {
             scene_prior_weight: default_scene_prior_weight(),
             tolerance: 1e-7,
             snap: true,
+            target_planes: false,
         }
     }
 }
@@ -264,18 +273,19 @@ fn gauss_newton<C: Default + Send>(
 }
 
 /// Polishes `pose` (unit frame, maps `source` into the target frame) against the `target`
-/// points and their k-d `tree`; with `planes`, against the planes at the target's points
-/// ([`TargetPlanes`], scenes), else against planes fitted at the moved source points.
+/// points, their k-d `tree` and median `spacing` ([`crate::geometry::tree::target_spacing`]); with `planes`, against
+/// the planes at the target's points ([`TargetPlanes`], scenes), else against planes fitted at
+/// the moved source points.
 pub(crate) fn polish(
     source: &[Point3<f64>],
     target: &[[f32; 3]],
     tree: &Tree,
+    spacing: f64,
     pose: &Isometry3<f64>,
     s: &PolishSettings,
     planes: Option<&TargetPlanes>,
 ) -> PolishOutcome {
     let start = *pose;
-    let spacing = planes.map_or_else(|| target_spacing(target, tree), |p| p.spacing);
     // A scene's steps are small against its points' spacing long before they are against its
     // extent: there the tolerance is at least SCENE_TOLERANCE_SPACINGS spacings.
     let scene;
@@ -443,6 +453,7 @@ fn undo_if_far(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::tree::target_spacing;
 
     use crate::geometry::tree::build_tree;
     use rand::SeedableRng;
@@ -474,6 +485,7 @@ mod tests {
             &source,
             &target,
             &tree,
+            target_spacing(&target, &tree),
             &start,
             &PolishSettings::default(),
             None,
@@ -503,6 +515,7 @@ mod tests {
             &source,
             &target,
             &tree,
+            target_spacing(&target, &tree),
             &start,
             &PolishSettings::default(),
             None,

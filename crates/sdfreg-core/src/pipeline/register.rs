@@ -38,7 +38,7 @@ use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
 use crate::pipeline::registration::{measure, Registration, Trace};
-use crate::pipeline::report::{InitialReport, Stage};
+use crate::pipeline::report::{InitialReport, Stage, StageTimes};
 use crate::pipeline::rerun::robust_rerun;
 use crate::pipeline::robust::{outside_share, KernelPolicy};
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
@@ -72,8 +72,12 @@ pub fn register_with_progress(
     let mut r = in_pool(settings.threads, || {
         let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
         let source = subsample(&source, settings.max_source_points, &mut rng);
+        let prefit_start = Instant::now();
         let (norm, fitter) = prefit(&target, settings, &mut rng, progress)?;
-        register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)
+        let prefit_time = prefit_start.elapsed();
+        let mut r = register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)?;
+        r.stage_times.prefit = prefit_time;
+        Ok::<_, Error>(r)
     })??;
     r.time = start.elapsed();
     Ok(r)
@@ -151,7 +155,7 @@ fn register_drawn<S: Surface>(
     let outside = |r: &Registration| {
         let pose = unit.norm.pose_to_unit(&r.t_target_source);
         let moved = crate::geometry::cloud::transformed_f32(&unit.source, &pose);
-        outside_share(&moved, surface.target(), surface.tree())
+        outside_share(&moved, surface.tree(), surface.spacing())
     };
     let mut r = robust_rerun(first, s, outside, run);
     r.time = start.elapsed();
@@ -171,8 +175,15 @@ fn run<S: Surface>(
     refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Registration {
+    let mut times = StageTimes::default();
+    let mut clock = Instant::now();
+    let mut lap = |time: &mut std::time::Duration| {
+        *time = clock.elapsed();
+        clock = Instant::now();
+    };
     let mut fit = Cow::Borrowed(surface);
     let (hypotheses, initial) = initial_pose(&*fit, unit, init, s, policy, rng, progress);
+    lap(&mut times.initial);
     let Alternated {
         mut lm,
         survivors,
@@ -186,24 +197,27 @@ fn run<S: Surface>(
         refine,
         progress,
     );
+    lap(&mut times.coarse_to_fine);
     let after_alternations = lm.pose;
     progress(Stage::Final);
     let lm_stop = final_lm(&*fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
+    lap(&mut times.final_lm);
     let polish_settings = s.polish.for_target(fit.is_local());
-    let planes = fit
-        .is_local()
+    let planes = (fit.is_local() || polish_settings.target_planes)
         .then(|| fit.target_planes(polish_settings.neighbours));
     let polish_from = |start: &Isometry3<f64>| {
         polish(
             &unit.source,
             fit.target(),
             fit.tree(),
+            fit.spacing(),
             start,
             &polish_settings,
             planes.as_deref(),
         )
     };
     let polished = polish_from(&lm.pose);
+    lap(&mut times.polish);
     let searched = search(
         &unit.source,
         fit.target(),
@@ -213,6 +227,7 @@ fn run<S: Surface>(
         polish_from,
         s.inlier_distance,
     );
+    lap(&mut times.shift_search);
     let trace = Trace {
         start: hypotheses[winner],
         initial,
@@ -223,6 +238,7 @@ fn run<S: Surface>(
         lm_stop,
         polished,
         searched,
+        times,
     };
     measure(
         &unit.source,

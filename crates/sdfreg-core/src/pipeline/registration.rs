@@ -9,7 +9,7 @@ use crate::geometry::cloud::Normalization;
 use crate::pipeline::polish::PolishOutcome;
 use crate::pipeline::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RobustReport, ShiftSearchReport, Stages,
+    RobustReport, ShiftSearchReport, StageTimes, Stages,
 };
 use crate::pipeline::settings::RegisterSettings;
 use crate::pipeline::shift_search::Searched;
@@ -55,6 +55,9 @@ pub struct Registration {
     pub stages: Stages,
     /// Wall time (both runs when the robust kernel was tried after least squares).
     pub time: Duration,
+    /// Wall time of each stage (results written before it existed read as zeros).
+    #[serde(default)]
+    pub stage_times: StageTimes,
 }
 
 impl Registration {
@@ -79,6 +82,8 @@ pub(crate) struct Trace {
     pub(crate) lm_stop: StopReason,
     pub(crate) polished: PolishOutcome,
     pub(crate) searched: Searched,
+    /// Stages 3–8's wall times (the measure's is added by [`measure`]).
+    pub(crate) times: StageTimes,
 }
 
 /// Stage 9: the result in the user's frame — its quality against the target and Φ, and what
@@ -91,6 +96,7 @@ pub(crate) fn measure<S: Surface>(
     robust: bool,
     t: Trace,
 ) -> Registration {
+    let start = std::time::Instant::now();
     let change =
         |a: &Isometry3<f64>, b: &Isometry3<f64>| PoseChange::between(source, a, b, norm.scale);
     let after_alternations = t.after_alternations;
@@ -143,6 +149,10 @@ pub(crate) fn measure<S: Surface>(
         robust,
         stages,
         time: Duration::ZERO,
+        stage_times: StageTimes {
+            measure: start.elapsed(),
+            ..t.times
+        },
     }
 }
 

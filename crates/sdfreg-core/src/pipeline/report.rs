@@ -7,6 +7,8 @@
 //! and was kept. Serialises to JSON with snake_case names (the CLI's `stages`, Python's
 //! `Registration.stages`).
 
+use std::time::Duration;
+
 use nalgebra::{Isometry3, Point3};
 
 use crate::solve::lm::StopReason;
@@ -176,6 +178,59 @@ pub struct Stages {
     pub polish: PolishReport,
     /// The shift search.
     pub shift_search: ShiftSearchReport,
+}
+
+/// Wall time of each stage of a registration ([`crate::Registration::stage_times`]): where the
+/// time went. The stages of the returned run, plus the target's pre-fit and the robust re-run's
+/// other run; what they leave out of [`crate::Registration::time`] is validation and
+/// subsampling.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct StageTimes {
+    /// Stages 1–2 on the target: normalising it and pre-fitting Φ (zero against a stored
+    /// model, whose fit was paid once by [`crate::SdfModel::fit`]).
+    pub prefit: Duration,
+    /// Stage 3: the multi-start (next to nothing with an initial guess).
+    pub initial: Duration,
+    /// Stage 4: the coarse-to-fine alternations (Φ refinement and LM steps, every hypothesis).
+    pub coarse_to_fine: Duration,
+    /// Stage 5: the final LM on the frozen Φ.
+    pub final_lm: Duration,
+    /// Stage 7: the point-to-plane polish (the target's planes included).
+    pub polish: Duration,
+    /// Stage 8: the shift search.
+    pub shift_search: Duration,
+    /// Stage 9: fitness, inlier RMSE, JᵀJ and the free motions.
+    pub measure: Duration,
+    /// Stage 6: the run that was not returned when the robust re-run ran (the least-squares
+    /// run when the re-run was kept, else the re-run); zero when there was none.
+    pub other_run: Duration,
+}
+
+impl StageTimes {
+    /// Each stage's name (as in [`Stages`] and the CLI's `stage_ms`) and time, in pipeline
+    /// order.
+    pub fn named(&self) -> [(&'static str, Duration); 8] {
+        [
+            ("prefit", self.prefit),
+            ("initial", self.initial),
+            ("coarse_to_fine", self.coarse_to_fine),
+            ("final_lm", self.final_lm),
+            ("polish", self.polish),
+            ("shift_search", self.shift_search),
+            ("measure", self.measure),
+            ("other_run", self.other_run),
+        ]
+    }
+
+    /// The sum of the stages 3–9 of one run (the pre-fit and the other run left out).
+    pub(crate) fn run(&self) -> Duration {
+        self.initial
+            + self.coarse_to_fine
+            + self.final_lm
+            + self.polish
+            + self.shift_search
+            + self.measure
+    }
 }
 
 /// Progress reported while registering.

@@ -103,15 +103,21 @@ pub(crate) fn robust_rerun(
             least_squares_outside,
             robust_fitness,
         };
-        with_robust(second, report)
+        with_robust(with_other_run(second, &first), report)
     } else {
         let report = RobustReport::RerunRejected {
             least_squares_fitness,
             least_squares_outside,
             robust_fitness,
         };
-        with_robust(first, report)
+        with_robust(with_other_run(first, &second), report)
     }
+}
+
+/// `r` with the time of the `other` run, which was not returned.
+fn with_other_run(mut r: Registration, other: &Registration) -> Registration {
+    r.stage_times.other_run = other.stage_times.run();
+    r
 }
 
 /// `r` with its robust report.

@@ -239,10 +239,10 @@ fn default_outside_share() -> f64 {
 pub const OUTSIDE_SPACINGS: f64 = 10.0;
 
 /// The share of the `moved` source points (unit frame) outside the coverage of the target
-/// points `target` (with their `tree`): beyond [`OUTSIDE_SPACINGS`] target spacings.
-pub(crate) fn outside_share(moved: &[[f32; 3]], target: &[[f32; 3]], tree: &Tree) -> f64 {
+/// points (their k-d `tree` and median `spacing`): beyond [`OUTSIDE_SPACINGS`] spacings.
+pub(crate) fn outside_share(moved: &[[f32; 3]], tree: &Tree, spacing: f64) -> f64 {
     use kiddo::SquaredEuclidean;
-    let gate = OUTSIDE_SPACINGS * crate::geometry::tree::target_spacing(target, tree);
+    let gate = OUTSIDE_SPACINGS * spacing;
     let gate2 = gate * gate;
     let outside = moved
         .par_iter()
@@ -269,9 +269,20 @@ mod tests {
             [0.1, 0.1, 0.2],
             [0.8, 0.1, 0.0],
         ];
-        let share = outside_share(&moved, &target, &tree);
+        let share = outside_share(
+            &moved,
+            &tree,
+            crate::geometry::tree::target_spacing(&target, &tree),
+        );
         assert!((share - 0.5).abs() < 1e-12, "{share}");
-        assert_eq!(outside_share(&moved[..2], &target, &tree), 0.0);
+        assert_eq!(
+            outside_share(
+                &moved[..2],
+                &tree,
+                crate::geometry::tree::target_spacing(&target, &tree)
+            ),
+            0.0
+        );
     }
 
     #[test]

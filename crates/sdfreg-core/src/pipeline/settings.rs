@@ -122,6 +122,7 @@ impl RegisterSettings {
                 scene_alternations: 0,
                 lm_steps_per_alternation: 0,
                 final_lm_steps: 5,
+                final_lm_baked: true,
             },
             robust: RobustSettings {
                 mode: RobustMode::Off,
@@ -131,6 +132,7 @@ impl RegisterSettings {
                 iterations: 2,
                 near_spacings: 0.0,
                 snap: false,
+                target_planes: true,
                 ..Default::default()
             },
             shift_search: ShiftSearchSettings {

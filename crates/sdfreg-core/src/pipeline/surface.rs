@@ -25,6 +25,8 @@ pub(crate) trait Surface: Clone + Sync {
     fn target(&self) -> &[[f32; 3]];
     /// Their k-d tree.
     fn tree(&self) -> &Tree;
+    /// Their median spacing (unit frame), computed once per target.
+    fn spacing(&self) -> f64;
     /// Adds moved-source queries for a refinement of Φ (coarse-to-fine); an exact field has
     /// nothing to refine and ignores them.
     fn add_source_queries(&mut self, points: &[[f32; 3]]);
@@ -37,11 +39,7 @@ pub(crate) trait Surface: Clone + Sync {
     /// The planes at the target's points of `k` points each, for a scene's polish: new ones,
     /// or a stored model's kept from earlier registrations.
     fn target_planes(&self, k: usize) -> std::sync::Arc<crate::geometry::planes::TargetPlanes> {
-        std::sync::Arc::new(crate::geometry::planes::TargetPlanes::new(
-            self.target(),
-            self.tree(),
-            k,
-        ))
+        std::sync::Arc::new(crate::geometry::planes::TargetPlanes::new(self.target(), k))
     }
 }
 
@@ -59,6 +57,9 @@ impl Surface for SdfFitter {
     }
     fn tree(&self) -> &Tree {
         SdfFitter::tree(self)
+    }
+    fn spacing(&self) -> f64 {
+        SdfFitter::spacing(self)
     }
     fn add_source_queries(&mut self, points: &[[f32; 3]]) {
         SdfFitter::add_source_queries(self, points)
@@ -171,6 +172,9 @@ impl<'a, S: Surface> Surface for WithGrid<'a, S> {
     fn tree(&self) -> &Tree {
         self.surface.tree()
     }
+    fn spacing(&self) -> f64 {
+        self.surface.spacing()
+    }
     fn add_source_queries(&mut self, _: &[[f32; 3]]) {}
     fn refine(&mut self, _: usize, _: f32) {}
     fn is_local(&self) -> bool {
@@ -178,7 +182,7 @@ impl<'a, S: Surface> Surface for WithGrid<'a, S> {
     }
     fn target_planes(&self, k: usize) -> std::sync::Arc<TargetPlanes> {
         match self.planes {
-            Some(shared) => shared.get(self.target(), self.tree(), k),
+            Some(shared) => shared.get(self.target(), k),
             None => self.surface.target_planes(k),
         }
     }

@@ -237,6 +237,7 @@ class CoarseToFineSettings:
         scene_alternations: int = 5,
         lm_steps_per_alternation: int = 2,
         final_lm_steps: int = 10,
+        final_lm_baked: bool = False,
     ) -> CoarseToFineSettings: ...
     @property
     def alternations(self) -> int: ...
@@ -246,6 +247,8 @@ class CoarseToFineSettings:
     def lm_steps_per_alternation(self) -> int: ...
     @property
     def final_lm_steps(self) -> int: ...
+    @property
+    def final_lm_baked(self) -> bool: ...
 
 @final
 class LmSettings:
@@ -328,6 +331,7 @@ class PolishSettings:
         scene_prior_weight: float = 1e-6,
         tolerance: float = 1e-7,
         snap: bool = True,
+        target_planes: bool = False,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -349,6 +353,8 @@ class PolishSettings:
     def tolerance(self) -> float: ...
     @property
     def snap(self) -> bool: ...
+    @property
+    def target_planes(self) -> bool: ...
 
 @final
 class ShiftSearchSettings:
@@ -447,6 +453,12 @@ class Registration:
     @property
     def time_s(self) -> float:
         """Wall time of the registration, seconds."""
+    @property
+    def stage_times_s(self) -> Dict[str, float]:
+        """Wall time of each stage, seconds, in pipeline order: ``prefit`` (fitting Φ on the
+        target; 0 against a model), ``initial``, ``coarse_to_fine``, ``final_lm``, ``polish``,
+        ``shift_search``, ``measure`` and ``other_run`` (the robust re-run's run that was not
+        returned; 0 when none ran)."""
     def __reduce__(self) -> Any: ...
 
 
