@@ -118,7 +118,8 @@ pub struct Common {
     pub max_target_points: Option<usize>,
     /// Kind of Φ: `global` (one MLP: objects), `local` (the MLP plus a sparse voxel grid of
     /// corrections near the target's points: rooms, streets), or `auto` (local when the
-    /// target's largest side is at least --local-ratio point spacings) [default: auto].
+    /// target's largest side is at least 400 point spacings, `LocalSettings.auto_ratio`)
+    /// [default: auto].
     #[arg(long = "model", id = "model_kind", value_name = "KIND",
           value_parser = clap::builder::PossibleValuesParser::new(ModelKind::NAMES))]
     pub model_kind: Option<String>,
