@@ -352,6 +352,11 @@ pub struct DemoArgs {
     /// Rotation of the copy, degrees about a fixed oblique axis.
     #[arg(long, default_value_t = 40.0)]
     pub angle: f64,
+    /// Also write the pair into this folder (made if missing) as source.ply, target.ply and
+    /// gt.txt (the true 4×4, source into target), to try the other commands on; existing files
+    /// are not overwritten.
+    #[arg(long, value_name = "DIR")]
+    pub write_pair: Option<PathBuf>,
     #[command(flatten)]
     pub common: Common,
 }

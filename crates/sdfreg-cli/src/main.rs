@@ -407,6 +407,29 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
     Ok(())
 }
 
+/// The demo's pair as `dir`/{source.ply, target.ply, gt.txt}; refuses to overwrite any of them.
+fn write_demo_pair(
+    dir: &std::path::Path,
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    truth: &Isometry3<f64>,
+) -> Result<()> {
+    let files = ["source.ply", "target.ply", "gt.txt"].map(|f| dir.join(f));
+    if let Some(existing) = files.iter().find(|f| f.exists()) {
+        bail!(
+            "{}: exists; the demo does not overwrite it (choose another --write-pair folder)",
+            existing.display()
+        );
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("{}", dir.display()))?;
+    sdfreg_core::io::write_point_cloud(&files[0], source)?;
+    sdfreg_core::io::write_point_cloud(&files[1], target)?;
+    std::fs::write(&files[2], matrix_text(&truth.to_homogeneous()))
+        .with_context(|| format!("{}", files[2].display()))?;
+    println!("the pair written to {}", dir.display());
+    Ok(())
+}
+
 fn cmd_demo(a: DemoArgs) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(a.common.seed);
     let target = sdfreg_core::sim::shapes::blob(a.points.max(10), &mut rng);
@@ -423,6 +446,9 @@ fn cmd_demo(a: DemoArgs) -> Result<()> {
         a.angle,
         truth_motion.translation.vector.norm()
     );
+    if let Some(dir) = &a.write_pair {
+        write_demo_pair(dir, &source, &target, &truth)?;
+    }
     let r = register_with_bar(&source, &target, None, &a.common.settings()?)?;
     let (re, te) = pose_errors(&r.t_target_source, &truth);
     print!("estimated t_target_source:\n{}", matrix_text(&r.matrix()));

@@ -393,6 +393,46 @@ fn demo_reports_a_small_error() {
 }
 
 #[test]
+fn demo_writes_its_pair_for_the_other_commands_and_never_over_a_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let pair = dir.path().join("pair");
+    let out = sdfreg()
+        .args(["demo", "--points", "600", "--write-pair"])
+        .arg(&pair)
+        .args(QUICK)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // gt.txt moves source.ply exactly onto target.ply.
+    let gt = parse_matrix(&std::fs::read_to_string(pair.join("gt.txt")).unwrap());
+    let src = sdfreg_core::io::read_point_cloud(pair.join("source.ply")).unwrap();
+    let tgt = sdfreg_core::io::read_point_cloud(pair.join("target.ply")).unwrap();
+    assert_eq!((src.len(), tgt.len()), (600, 600));
+    let worst = src
+        .iter()
+        .zip(&tgt)
+        .map(|(p, q)| (gt.transform_point(p) - q).norm())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-6, "{worst}");
+    // Again into the same folder: refused, naming the file, nothing rewritten.
+    let before = std::fs::read(pair.join("source.ply")).unwrap();
+    let out = sdfreg()
+        .args(["demo", "--points", "50", "--write-pair"])
+        .arg(&pair)
+        .args(QUICK)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("source.ply: exists"), "{err}");
+    assert_eq!(std::fs::read(pair.join("source.ply")).unwrap(), before);
+}
+
+#[test]
 fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
     let dir = tempfile::tempdir().unwrap();
     let shapes = dir.path().join("shapes");
@@ -460,6 +500,18 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
         assert!(s["euler_mae_deg"].as_f64().unwrap() < 2.0, "{s}");
         assert_eq!(s["recall_5deg_005"].as_f64().unwrap(), 1.0, "{s}");
     }
+    // Where the time went: every pair's stages, and their medians printed.
+    for p in eval["pairs"].as_array().unwrap() {
+        let fit = p["stage_ms"]["prefit"].as_f64().unwrap();
+        assert!(
+            fit > 0.0 && fit < 1e3 * p["time_s"].as_f64().unwrap(),
+            "{p}"
+        );
+    }
+    assert!(
+        stdout.contains("time per stage, median over the 6 pairs (ms): prefit "),
+        "{stdout}"
+    );
     // Pairs are not overwritten without --force; an unknown protocol is a one-line error.
     let again = sdfreg()
         .args(["eval", "--pairs-only", "--shapes"])

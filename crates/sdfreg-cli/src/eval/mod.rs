@@ -106,6 +106,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if let Some(r) = &robustness {
         report::robustness(r);
     }
+    report::stage_times(&all);
     if let Some(dir) = &a.write_pairs {
         let index = serde_json::json!({
             "shapes": a.shapes,

@@ -52,6 +52,36 @@ pub fn protocol(s: &Summary, results: &[PairResult]) {
     }
 }
 
+/// Where the time went: each stage's median over `results`, milliseconds, in pipeline order.
+pub fn stage_times(results: &[PairResult]) {
+    let Some(first) = results.first() else {
+        return;
+    };
+    let order = [
+        "prefit",
+        "initial",
+        "coarse_to_fine",
+        "final_lm",
+        "polish",
+        "shift_search",
+        "measure",
+        "other_run",
+    ];
+    let parts: Vec<String> = order
+        .iter()
+        .filter(|name| first.stage_ms.contains_key(*name))
+        .map(|name| {
+            let ms: Vec<f64> = results.iter().map(|r| r.stage_ms[name]).collect();
+            format!("{name} {:.1}", median(&ms))
+        })
+        .collect();
+    println!(
+        "time per stage, median over the {} pairs (ms): {}",
+        results.len(),
+        parts.join(", ")
+    );
+}
+
 /// `--via-model`'s figures of one protocol, besides the table's (which are the registrations
 /// against the model).
 #[derive(Default)]

@@ -31,6 +31,8 @@ pub struct PairResult {
     /// The motions sdfreg reported as free (the data do not determine them), described.
     pub free_motions: Vec<String>,
     pub time_s: f64,
+    /// Each stage's wall time, milliseconds (`Registration::stage_times`).
+    pub stage_ms: std::collections::BTreeMap<&'static str, f64>,
 }
 
 impl PairResult {
@@ -63,6 +65,12 @@ impl PairResult {
             stop_reason: r.stop_reason.name(),
             free_motions: r.degeneracy.free.iter().map(|f| f.to_string()).collect(),
             time_s: r.time.as_secs_f64(),
+            stage_ms: r
+                .stage_times
+                .named()
+                .iter()
+                .map(|(name, t)| (*name, t.as_secs_f64() * 1e3))
+                .collect(),
         }
     }
 }
