@@ -57,18 +57,10 @@ pub fn stage_times(results: &[PairResult]) {
     let Some(first) = results.first() else {
         return;
     };
-    let order = [
-        "prefit",
-        "initial",
-        "coarse_to_fine",
-        "final_lm",
-        "polish",
-        "shift_search",
-        "measure",
-        "other_run",
-    ];
-    let parts: Vec<String> = order
+    let parts: Vec<String> = sdfreg_core::StageTimes::default()
+        .named()
         .iter()
+        .map(|(name, _)| name)
         .filter(|name| first.stage_ms.contains_key(*name))
         .map(|name| {
             let ms: Vec<f64> = results.iter().map(|r| r.stage_ms[name]).collect();

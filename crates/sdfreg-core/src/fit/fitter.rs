@@ -89,8 +89,8 @@ pub struct SdfFitter {
     /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
     /// allocation in the loop).
     scratch: Vec<BlockScratch>,
-    /// The target's median point spacing, computed when first asked for.
-    spacing: std::sync::OnceLock<f64>,
+    /// The target's median point spacing ([`target_spacing`]), unit frame.
+    spacing: f64,
 }
 
 /// One block's workspace, network gradient and local gradient `(slot, ∂L/∂θ)`.
@@ -148,11 +148,12 @@ impl SdfFitter {
         seed: u64,
     ) -> Self {
         let tree = build_tree(&target);
+        let spacing = target_spacing(&target, &tree);
         let local = settings
             .local
-            .voxel(target_spacing(&target, &tree))
+            .voxel(spacing)
             .map(|voxel| LocalGrid::allocate(&target, voxel, settings.local.band));
-        Self::assemble(target, tree, local, mlp, settings, seed)
+        Self::assemble(target, tree, spacing, local, mlp, settings, seed)
     }
 
     /// [`Self::new`], refusing a local grid whose voxel is below
@@ -166,16 +167,18 @@ impl SdfFitter {
         seed: u64,
     ) -> Result<Self, Error> {
         let tree = build_tree(&target);
-        let local = settings
-            .local
-            .grid(&target, target_spacing(&target, &tree))?;
-        Ok(Self::assemble(target, tree, local, mlp, settings, seed))
+        let spacing = target_spacing(&target, &tree);
+        let local = settings.local.grid(&target, spacing)?;
+        Ok(Self::assemble(
+            target, tree, spacing, local, mlp, settings, seed,
+        ))
     }
 
-    /// The fit on `target` with its k-d `tree` and local grid.
+    /// The fit on `target` with its k-d `tree`, median `spacing` and local grid.
     fn assemble(
         target: Vec<[f32; 3]>,
         tree: Tree,
+        spacing: f64,
         local: Option<LocalGrid>,
         mlp: &MlpSettings,
         settings: &FitSettings,
@@ -267,16 +270,14 @@ impl SdfFitter {
             plane_distance: Vec::new(),
             rng,
             scratch: Vec::new(),
-            spacing: std::sync::OnceLock::new(),
+            spacing,
         }
     }
 
     /// The target points' median spacing (distance to the nearest other target point, unit
-    /// frame; [`target_spacing`]), computed once.
+    /// frame; [`target_spacing`]), computed once with the tree.
     pub(crate) fn spacing(&self) -> f64 {
-        *self
-            .spacing
-            .get_or_init(|| target_spacing(&self.target, &self.tree))
+        self.spacing
     }
 
     /// The current network (Φ's global part).
