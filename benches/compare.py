@@ -13,6 +13,12 @@ Fair parameters, for clouds scaled to a unit bounding box (documented per method
 local method starts from the centroid alignment (what sdfreg does itself before its multi-start),
 ICP variants get a correspondence distance of 0.5 (half the object: their widest basin without
 matching across the whole shape) and up to 100 iterations.
+
+The similarity protocols (`--protocol scaled,scaled-indep`: the source scaled by U[0.5, 2]) run
+the methods that estimate a scale: sdfreg with `scale=True`, Open3D's point-to-point ICP with
+`with_scaling=True` and probreg's CPD with its scale update, the peers from the centroid
+alignment at the ratio of the clouds' RMS radii (the extents' estimate sdfreg starts from too).
+Their rows add the scale error in percent (`|ŝ/s − 1|`).
 """
 
 from __future__ import annotations
@@ -119,6 +125,68 @@ def subsample(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
 
 def method_sdfreg(src, tgt):
     return sdfreg.register(src, tgt, seed=0).transformation
+
+
+def method_sdfreg_scale(src, tgt):
+    return sdfreg.register(src, tgt, seed=0, scale=True).transformation
+
+
+def similarity_init(src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    """Centroid alignment at the ratio of the clouds' RMS radii: x = s (p − c_src) + c_tgt."""
+    c_src, c_tgt = src.mean(0), tgt.mean(0)
+    s = math.sqrt(((tgt - c_tgt) ** 2).sum(1).mean() / ((src - c_src) ** 2).sum(1).mean())
+    init = np.eye(4)
+    init[:3, :3] *= s
+    init[:3, 3] = c_tgt - s * c_src
+    return init
+
+
+def split_similarity(m: np.ndarray) -> tuple:
+    """(the rigid part [R | t], s) of a similarity [s R | t]."""
+    s = float(np.cbrt(np.linalg.det(m[:3, :3])))
+    r = m.copy()
+    r[:3, :3] /= s
+    return r, s
+
+
+def scaled_methods() -> Dict[str, Callable]:
+    """The methods that estimate a scale, for the similarity protocols."""
+    methods: Dict[str, Callable] = {"sdfreg --scale": method_sdfreg_scale}
+    try:
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+
+        def icp_scaled(src, tgt):
+            return reg.registration_icp(
+                o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)),
+                o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tgt)),
+                0.5, similarity_init(src, tgt),
+                reg.TransformationEstimationPointToPoint(with_scaling=True),
+                reg.ICPConvergenceCriteria(max_iteration=100),
+            ).transformation
+
+        methods["Open3D ICP point-to-point, with_scaling"] = icp_scaled
+    except ImportError as e:
+        print(f"compare.py: skipping Open3D's scaled ICP: {e}", file=sys.stderr)
+    try:
+        from probreg import cpd
+
+        def cpd_scaled(src, tgt):
+            init = similarity_init(src, tgt)
+            moved = src @ init[:3, :3].T + init[:3, 3]
+            tf, _, _ = cpd.registration_cpd(
+                subsample(moved, 1000), subsample(tgt, 1000), tf_type_name="rigid",
+                update_scale=True, maxiter=100)
+            t = np.eye(4)
+            t[:3, :3] = tf.scale * tf.rot
+            t[:3, 3] = tf.t
+            return t @ init
+
+        methods["probreg CPD, with scale"] = cpd_scaled
+    except ImportError as e:
+        print(f"compare.py: skipping probreg's CPD: {e}", file=sys.stderr)
+    return methods
 
 
 def open3d_methods() -> Dict[str, Callable]:
@@ -257,6 +325,9 @@ def summarise(rows: List[dict]) -> dict:
         "recall_5": sum(r["rotation_error_deg"] < 5 and r["translation_error"] < 0.05
                         for r in rows) / len(rows),
         "time_median": statistics.median(r["time_s"] for r in rows),
+        **({"scale_error_pct_mean": statistics.fmean(r["scale_error_pct"] for r in rows),
+            "scale_error_pct_median": statistics.median(r["scale_error_pct"] for r in rows)}
+           if rows and "scale_error_pct" in rows[0] else {}),
     }
 
 
@@ -298,8 +369,11 @@ def matrix(summary: dict, protocols: List[str], methods: List[str], key: str) ->
     for m in methods:
         cells = []
         for p in protocols:
+            if f"{p}/{m}" not in summary:  # rigid methods skip the similarity protocols
+                cells.append("")
+                continue
             v = summary[f"{p}/{m}"][key]
-            best = min(summary[f"{p}/{mm}"][key] for mm in methods)
+            best = min(summary[f"{p}/{mm}"][key] for mm in methods if f"{p}/{mm}" in summary)
             cells.append(f"**{v:.2f}**" if v - best < 5e-4 else f"{v:.2f}")
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
     return lines
@@ -343,13 +417,21 @@ def main() -> None:
         wanted = [w.strip() for w in args.methods.split(",")]
         methods = {k: v for k, v in methods.items() if any(w in k for w in wanted)}
 
+    with_scale = scaled_methods() if any(
+        p["protocol"].startswith("scaled") for p in index["pairs"]) else {}
+    if args.methods:
+        with_scale = {k: v for k, v in with_scale.items() if any(w in k for w in wanted)}
     results = []
     for p in index["pairs"]:
         d = pairs_dir / p["dir"]
         src = sdfreg.read_point_cloud(d / "source.ply")
         tgt = sdfreg.read_point_cloud(d / "target.ply")
         gt = np.array(p["t_target_source"])
-        for name, fn in methods.items():
+        scaled = p["protocol"].startswith("scaled")
+        if scaled:
+            gt, gt_scale = split_similarity(gt)
+        run = with_scale if scaled else methods
+        for name, fn in run.items():
             start = time.perf_counter()
             try:
                 est = np.asarray(fn(src, tgt), dtype=float)
@@ -357,16 +439,20 @@ def main() -> None:
                 print(f"{name} failed on {p['dir']}: {e}", file=sys.stderr)
                 est = np.eye(4)
             elapsed = time.perf_counter() - start
-            results.append({
-                "protocol": p["protocol"], "index": p["index"], "shape": p["shape"],
-                "method": name,
+            row = {"protocol": p["protocol"], "index": p["index"], "shape": p["shape"],
+                   "method": name}
+            if scaled:
+                est, est_scale = split_similarity(est)
+                row["scale_error_pct"] = abs(est_scale / gt_scale - 1.0) * 100.0
+            row.update({
                 "rotation_error_deg": rotation_error_deg(est, gt),
                 "translation_error": float(np.linalg.norm(est[:3, 3] - gt[:3, 3])),
                 "euler_error_deg": euler_errors(est, gt).tolist(),
                 "time_s": elapsed,
             })
+            results.append(row)
         print(f"{p['protocol']} {p['index']:3d} {p['shape']}: " + ", ".join(
-            f"{r['method']} {r['rotation_error_deg']:.2f}°" for r in results[-len(methods):]),
+            f"{r['method']} {r['rotation_error_deg']:.2f}°" for r in results[-len(run):]),
             flush=True)
 
     protocols = list(dict.fromkeys(p["protocol"] for p in index["pairs"]))
@@ -380,11 +466,14 @@ def main() -> None:
     ]
     summary = {}
     for protocol in protocols:
-        for m in methods:
+        for m in (with_scale if protocol.startswith("scaled") else methods):
             rows = [r for r in results if r["protocol"] == protocol and r["method"] == m]
             s = summarise(rows)
             summary[f"{protocol}/{m}"] = s
-            name = f"**{m}**" if m == "sdfreg" else m
+            name = f"**{m}**" if m.startswith("sdfreg") else m
+            if "scale_error_pct_mean" in s:
+                name += (f" (scale error {s['scale_error_pct_mean']:.3f} % mean, "
+                         f"{s['scale_error_pct_median']:.3f} % median)")
             lines.append(
                 f"| {protocol} | {name} | {s['rot_mean']:.3f} | {s['rot_rmse']:.3f} | "
                 f"{s['rot_median']:.3f} | {s['t_mean']:.4f} | {s['euler_mae']:.3f} | "
@@ -394,15 +483,17 @@ def main() -> None:
                 mae, rmse, _, _ = per[protocol]
                 lines.append(f"| {protocol} | *{ref}, quoted* | | | | | *{mae}* | *{rmse}* | | |")
     lines += ["", "Mean rotation error (°), best in bold:", ""]
-    lines += matrix(summary, protocols, list(methods), "rot_mean")
+    every = [m for m in list(methods) + list(with_scale)
+             if any(f"{p}/{m}" in summary for p in protocols)]
+    lines += matrix(summary, protocols, every, "rot_mean")
     lines += ["", "Median rotation error (°), best in bold:", ""]
-    lines += matrix(summary, protocols, list(methods), "rot_median")
+    lines += matrix(summary, protocols, every, "rot_median")
     table = "\n".join(lines) + "\n"
     (args.out / "table.md").write_text(table)
     (args.out / "results.json").write_text(json.dumps(
         {"shapes": str(args.shapes), "pairs": args.pairs, "seed": args.seed,
          "summary": summary, "results": results}, indent=1) + "\n")
-    plot(results, protocols, list(methods), args.out / "cdf.png")
+    plot(results, protocols, every, args.out / "cdf.png")
     print(table)
     print(f"written: {args.out / 'table.md'}, {args.out / 'results.json'}, {args.out / 'cdf.png'}")
 

@@ -131,6 +131,16 @@ pub struct Common {
     /// of --local-voxel; makes `--model auto` local.
     #[arg(long, value_name = "SIZE")]
     pub local_voxel_size: Option<f64>,
+    /// Estimate a scale with the pose (similarity: millimetres against metres, an SfM
+    /// reconstruction against a LiDAR map): the result is `[s R | t]`, and JSON gains `scale`.
+    /// With --init, the matrix's 3×3 block gives the starting scale.
+    #[arg(long)]
+    pub scale: bool,
+    /// With --scale: the scale (target units per source unit) stays within MIN and MAX
+    /// [default: 0.1 to 10 times the unit factor, 1, 1000 or 0.001, that the clouds' extents
+    /// point to].
+    #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], requires = "scale")]
+    pub scale_range: Option<Vec<f64>>,
 }
 
 impl Common {
@@ -199,6 +209,13 @@ impl Common {
         }
         if let Some(v) = self.local_voxel_size {
             s.fit.local.voxel_size = Some(v);
+        }
+        s.scale.enabled |= self.scale;
+        if let Some(range) = &self.scale_range {
+            (s.scale.min, s.scale.max) = (Some(range[0]), Some(range[1]));
+            s.scale
+                .validate()
+                .map_err(|e| anyhow::anyhow!("--scale-range {} {}: {e}", range[0], range[1]))?;
         }
         Ok(s)
     }
@@ -368,7 +385,8 @@ pub struct EvalArgs {
     pub shapes: PathBuf,
     /// Comma-separated protocols: clean, noise, partial, density (the paper's), anyrot (uniform
     /// rotations), and each of the paper's with `-indep` (independently sampled source and
-    /// target, e.g. clean-indep); `paper` for the paper's four, `all` for every one.
+    /// target, e.g. clean-indep); `paper` for the paper's four, `all` for every rigid one;
+    /// `scaled` and `scaled-indep` (the source scaled by U[0.5, 2]) register with --scale.
     #[arg(long, default_value = "all")]
     pub protocol: String,
     /// Pairs per protocol (shapes are used in turn).

@@ -130,6 +130,29 @@ fn same_file(a: &Path, b: &Path) -> bool {
 }
 
 fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
+    let m = read_matrix4(path)?;
+    isometry_from_matrix(&m).with_context(|| {
+        format!(
+            "{}: the matrix is not a rigid transform (its 3×3 block must be a rotation, its last row 0 0 0 1)",
+            path.display()
+        )
+    })
+}
+
+/// A similarity `[s R | t]` from a text file (for `--init` with `--scale`): its rigid part and
+/// `s`.
+fn read_similarity(path: &Path) -> Result<(Isometry3<f64>, f64)> {
+    let m = read_matrix4(path)?;
+    sdfreg_core::geometry::se3::similarity_from_matrix(&m).with_context(|| {
+        format!(
+            "{}: the matrix is not a similarity (its 3×3 block must be a positive scale times a rotation, its last row 0 0 0 1)",
+            path.display()
+        )
+    })
+}
+
+/// The 16 numbers of a 4×4 matrix in a text file (12: the last row is `0 0 0 1`).
+fn read_matrix4(path: &Path) -> Result<Matrix4<f64>> {
     let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
     let values: Vec<f64> = text
         .split(|c: char| c.is_whitespace() || c == ',' || c == '[' || c == ']')
@@ -150,7 +173,7 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
             values.len()
         );
     }
-    let m = Matrix4::from_fn(|r, c| {
+    Ok(Matrix4::from_fn(|r, c| {
         if r < 3 || values.len() == 16 {
             values[r * 4 + c]
         } else if c == 3 {
@@ -158,13 +181,7 @@ fn read_matrix(path: &Path) -> Result<Isometry3<f64>> {
         } else {
             0.0
         }
-    });
-    isometry_from_matrix(&m).with_context(|| {
-        format!(
-            "{}: the matrix is not a rigid transform (its 3×3 block must be a rotation, its last row 0 0 0 1)",
-            path.display()
-        )
-    })
+    }))
 }
 
 /// Reads a cloud as `input` asks: a mesh's surface sampled (seeded by `seed`), or the points
@@ -348,8 +365,15 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         refuse_overwrite(out, &inputs, a.force)?;
     }
     let source = read_cloud(&a.source, &a.input, a.common.seed)?;
-    let init = a.init.as_deref().map(read_matrix).transpose()?;
-    let settings = a.common.settings()?;
+    let mut settings = a.common.settings()?;
+    let init = match a.init.as_deref() {
+        Some(path) if settings.scale.enabled => {
+            let (pose, scale) = read_similarity(path)?;
+            settings.scale.initial = Some(scale);
+            Some(pose)
+        }
+        path => path.map(read_matrix).transpose()?,
+    };
     let r = if a.exact_mesh {
         let (vertices, triangles) = read_mesh(&a.target)?;
         if triangles.is_empty() {
@@ -395,12 +419,23 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         None => print!("{}", matrix_text(&m)),
     }
     if let Some(path) = &a.aligned {
-        let moved: Vec<Point3<f64>> = source.iter().map(|p| r.t_target_source * p).collect();
+        let moved: Vec<Point3<f64>> = if settings.scale.enabled {
+            let similarity = r.similarity();
+            source.iter().map(|p| similarity * p).collect()
+        } else {
+            source.iter().map(|p| r.t_target_source * p).collect()
+        };
         write_point_cloud(path, &moved)?;
     }
     for f in &r.degeneracy.free {
         eprintln!(
             "sdfreg: warning: the clouds do not determine the {f}; the pose along it is arbitrary"
+        );
+    }
+    if r.degeneracy.scale_free() {
+        eprintln!(
+            "sdfreg: warning: the clouds do not determine the scale (relative eigenvalue {:.1e}: a flat or featureless overlap looks the same at every size); it is arbitrary",
+            r.degeneracy.scale_relative_eigenvalue.unwrap_or(0.0)
         );
     }
     eprintln!("sdfreg: {}", summary_line(&r));

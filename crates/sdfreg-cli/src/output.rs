@@ -39,7 +39,7 @@ pub fn free_motions_json(d: &Degeneracy) -> serde_json::Value {
 
 /// A registration as the JSON object `register --output FILE.json` writes.
 pub fn registration_json(r: &Registration) -> serde_json::Value {
-    serde_json::json!({
+    let mut json = serde_json::json!({
         "transformation": matrix_rows(&r.matrix()),
         "converged": r.converged,
         "stop_reason": r.stop_reason.name(),
@@ -55,7 +55,14 @@ pub fn registration_json(r: &Registration) -> serde_json::Value {
         "stages": r.stages,
         "time_ms": r.time.as_secs_f64() * 1e3,
         "stage_ms": stage_ms(r),
-    })
+    });
+    if let Some(info) = &r.similarity_information {
+        json["scale"] = r.scale.into();
+        json["similarity_information"] = serde_json::json!(matrix_rows(info));
+        json["scale_relative_eigenvalue"] = r.degeneracy.scale_relative_eigenvalue.into();
+        json["scale_free"] = r.degeneracy.scale_free().into();
+    }
+    json
 }
 
 /// Each stage's wall time, milliseconds (`Registration::stage_times`).
@@ -70,8 +77,12 @@ fn stage_ms(r: &Registration) -> serde_json::Value {
 
 /// The one-line summary `register` prints on stderr.
 pub fn summary_line(r: &Registration) -> String {
+    let scale = match r.similarity_information {
+        Some(_) => format!(", scale {:.6}", r.scale),
+        None => String::new(),
+    };
     format!(
-        "{} ({}) after {} LM iterations, fitness {:.3}{}, inlier RMSE {:.3e}, {:.0} ms",
+        "{} ({}) after {} LM iterations{scale}, fitness {:.3}{}, inlier RMSE {:.3e}, {:.0} ms",
         if r.converged {
             "converged"
         } else {

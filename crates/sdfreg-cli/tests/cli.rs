@@ -454,7 +454,7 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
             "--pairs",
             "2",
             "--protocol",
-            "clean,anyrot,partial-indep",
+            "clean,anyrot,partial-indep,scaled",
         ])
         .arg("--shapes")
         .arg(&shapes)
@@ -471,14 +471,20 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    for name in ["| clean | 2 |", "| anyrot | 2 |", "| partial-indep | 2 |"] {
+    for name in [
+        "| clean | 2 |",
+        "| anyrot | 2 |",
+        "| partial-indep | 2 |",
+        "| scaled | 2 |",
+        "  scale error: mean ",
+    ] {
         assert!(stdout.contains(name), "{stdout}");
     }
     // Every written pair: the ground truth moves the source onto the target's surface.
     let index: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(pairs.join("pairs.json")).unwrap()).unwrap();
     let listed = index["pairs"].as_array().unwrap();
-    assert_eq!(listed.len(), 6);
+    assert_eq!(listed.len(), 8);
     for p in listed {
         let d = pairs.join(p["dir"].as_str().unwrap());
         let gt = parse_matrix(&std::fs::read_to_string(d.join("gt.txt")).unwrap());
@@ -499,6 +505,12 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
         assert!(s["rotation_mean_deg"].as_f64().unwrap() < 2.0, "{s}");
         assert!(s["euler_mae_deg"].as_f64().unwrap() < 2.0, "{s}");
         assert_eq!(s["recall_5deg_005"].as_f64().unwrap(), 1.0, "{s}");
+        // The scaled protocol: the scale found within 0.5 %; the rigid ones have none.
+        let scaled = s["protocol"] == "scaled";
+        assert_eq!(s.get("scale_error_pct").is_some(), scaled, "{s}");
+        if scaled {
+            assert!(s["scale_error_pct"][0].as_f64().unwrap() < 0.5, "{s}");
+        }
     }
     // Where the time went: every pair's stages, and their medians printed.
     for p in eval["pairs"].as_array().unwrap() {
@@ -509,7 +521,7 @@ fn eval_writes_pairs_others_can_rerun_and_scores_every_protocol() {
         );
     }
     assert!(
-        stdout.contains("time per stage, median over the 6 pairs (ms): prefit "),
+        stdout.contains("time per stage, median over the 8 pairs (ms): prefit "),
         "{stdout}"
     );
     // Pairs are not overwritten without --force; an unknown protocol is a one-line error.
@@ -952,4 +964,68 @@ fn a_local_voxel_finer_than_the_points_is_refused_at_once_naming_the_flag() {
         err.starts_with("sdfreg: --local-voxel-size 0.0000001: invalid setting `fit.local.voxel_size`: a local voxel of 1.000e-7 in the target's units"),
         "{err}"
     );
+}
+
+#[test]
+fn register_with_scale_finds_millimetres_against_metres_and_writes_the_scaled_source() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = pair(dir.path());
+    // The source in millimetres: the truth is the similarity [R/1000 | t].
+    let src: Vec<Point3<f64>> = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz"))
+        .unwrap()
+        .iter()
+        .map(|p| p * 1000.0)
+        .collect();
+    write_xyz(&dir.path().join("src.xyz"), &src);
+    let (json, aligned) = (dir.path().join("r.json"), dir.path().join("aligned.ply"));
+    let out = register_cmd(dir.path())
+        .args(QUICK)
+        .args(["--scale", "-o"])
+        .arg(&json)
+        .arg("--aligned")
+        .arg(&aligned)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let scale = v["scale"].as_f64().unwrap();
+    assert!((scale / 1e-3 - 1.0).abs() < 0.005, "scale {scale}");
+    let rows: Vec<Vec<f64>> = serde_json::from_value(v["transformation"].clone()).unwrap();
+    let m = Matrix4::from_fn(|r, c| rows[r][c]);
+    let mut expected = truth.to_homogeneous();
+    expected.fixed_view_mut::<3, 3>(0, 0).scale_mut(1e-3);
+    assert!((m - expected).amax() < 0.01, "{m} vs {expected}");
+    assert_eq!(v["similarity_information"].as_array().unwrap().len(), 7);
+    assert_eq!(v["scale_free"], false);
+    // The aligned cloud is the source moved by the similarity: on the target, in metres.
+    let moved = sdfreg_core::io::read_point_cloud(&aligned).unwrap();
+    let target = sdfreg_core::io::read_point_cloud(dir.path().join("tgt.ply")).unwrap();
+    let off = moved
+        .iter()
+        .zip(&target)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(off < 0.01, "aligned source {off} off the target");
+    // A bad range is refused naming the flag; a range needs --scale.
+    let out = register_cmd(dir.path())
+        .args(["--scale", "--scale-range", "2", "1"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--scale-range 2 1") && err.contains("must be below"),
+        "{err}"
+    );
+    let out = register_cmd(dir.path())
+        .args(["--scale-range", "0.5", "2"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--scale"));
 }

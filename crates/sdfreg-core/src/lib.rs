@@ -22,7 +22,8 @@
 //! - [`RegisterSettings`]: every setting, one struct per stage — [`MlpSettings`],
 //!   [`FitSettings`], [`MultistartSettings`], [`CoarseToFineSettings`], [`LmSettings`],
 //!   [`RobustSettings`] (with the [`RobustMode`] choice), [`PolishSettings`],
-//!   [`ShiftSearchSettings`]; presets [`RegisterSettings::default`] and
+//!   [`ShiftSearchSettings`], [`ScaleSettings`] (similarity registration, off by default);
+//!   presets [`RegisterSettings::default`] and
 //!   [`RegisterSettings::partial_scans`].
 //! - [`SdfModel`]: the fitted target as an object — [`SdfModel::fit`] once, then
 //!   [`SdfModel::register`] many sources against it (Φ frozen; [`SdfModel::register_refined`]
@@ -110,6 +111,7 @@ pub use pipeline::report::{
     RobustReport, ShiftSearchReport, Stage, StageTimes, Stages,
 };
 pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
+pub use pipeline::scale::{ScaleSettings, DEFAULT_RANGE, UNIT_FACTORS};
 pub use pipeline::settings::{RegisterSettings, MIN_POINTS};
 pub use pipeline::shift_search::ShiftSearchSettings;
 pub use solve::degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};

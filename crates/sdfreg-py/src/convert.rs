@@ -122,6 +122,19 @@ pub fn isometry(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Isometry3<f64>> 
     })
 }
 
+/// A 4×4 similarity `[s R | t]` (array-like): its rigid part and `s`.
+pub fn similarity(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<(Isometry3<f64>, f64)> {
+    let array = float_array(obj, name, Some(4), 4)?;
+    let ro = array.readonly();
+    let m = Matrix4::from_row_slice(ro.as_slice()?);
+    sdfreg_core::geometry::se3::similarity_from_matrix(&m).ok_or_else(|| {
+        error::argument(
+            name,
+            "not a similarity (the 3×3 block must be a positive scale times a rotation, the last row 0 0 0 1)",
+        )
+    })
+}
+
 /// Points as a new (N, 3) float64 array.
 pub fn points_to_array<'py>(py: Python<'py>, pts: &[Point3<f64>]) -> Bound<'py, PyArray2<f64>> {
     let flat: Vec<f64> = pts.iter().flat_map(|p| [p.x, p.y, p.z]).collect();

@@ -75,6 +75,13 @@ use settings::{
 ///     lm: The Levenberg–Marquardt solver (:class:`LmSettings`).
 ///     polish: The final point-to-plane steps (:class:`PolishSettings`).
 ///     shift_search: The translation search (:class:`ShiftSearchSettings`).
+///     scale: Estimate a scale with the pose (similarity registration: millimetres against
+///         metres, an SfM reconstruction against a LiDAR map). ``transformation`` is then
+///         ``[s R | t]`` and :attr:`Registration.scale` holds ``s``; with ``init``, the scale
+///         of its 3×3 block is the start. Default False (rigid).
+///     scale_range: ``(min, max)``: the scale (target units per source unit) stays within
+///         them; needs ``scale=True``. Default 0.1 to 10 times the unit factor (1, 1000 or
+///         0.001) the clouds' extents point to.
 ///     model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
 ///         ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
 ///         points: rooms, streets), or ``"auto"`` (local when the target's largest side is at
@@ -87,8 +94,9 @@ use settings::{
 ///
 /// Raises:
 ///     ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
-///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
-///         setting is out of range.
+///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform (with
+///         ``scale=True``: not a positive scale times a rotation); a setting is out of range
+///         (``scale_range`` with min ≥ max or a bound ≤ 0).
 #[pyfunction]
 #[pyo3(signature = (source, target, *, init = None, refine = None, **settings))]
 fn register<'py>(
@@ -116,8 +124,15 @@ fn register<'py>(
         }
         (_, refine) => refine.unwrap_or(false),
     };
-    let init = init.map(|m| convert::isometry(m, "init")).transpose()?;
-    let s = SettingsArgs::from_kwargs(Caller::Register, settings)?.build("default")?;
+    let mut s = SettingsArgs::from_kwargs(Caller::Register, settings)?.build("default")?;
+    let init = match init {
+        Some(m) if s.scale.enabled => {
+            let (pose, scale) = convert::similarity(m, "init")?;
+            s.scale.initial = Some(scale);
+            Some(pose)
+        }
+        m => m.map(|m| convert::isometry(m, "init")).transpose()?,
+    };
     let result = py
         .detach(|| match &target {
             Target::Cloud(points) => sdfreg_core::register(&source, points, init.as_ref(), &s),

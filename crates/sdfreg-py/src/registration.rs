@@ -1,6 +1,6 @@
 //! `sdfreg.Registration`: the result of `sdfreg.register`, read-only.
 
-use numpy::{PyArray1, PyArray2};
+use numpy::{IntoPyArray, PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -12,10 +12,40 @@ pub struct PyRegistration(pub sdfreg_core::Registration);
 
 #[pymethods]
 impl PyRegistration {
-    /// 4×4 float64 array mapping source coordinates into the target frame.
+    /// 4×4 float64 array mapping source coordinates into the target frame: ``[R | t]``, or
+    /// with ``scale=True`` the similarity ``[s R | t]``.
     #[getter]
     fn transformation<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         convert::matrix4(py, &self.0.matrix())
+    }
+
+    /// The scale ``s`` of the similarity (target units per source unit); 1.0 when rigid.
+    #[getter]
+    fn scale(&self) -> f64 {
+        self.0.scale
+    }
+
+    /// With ``scale=True``: the 7×7 JᵀJ of the step [rotation (rad); translation (units);
+    /// log-scale], about the target origin; None when rigid.
+    #[getter]
+    fn similarity_information<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        self.0.similarity_information.map(|m| {
+            numpy::ndarray::Array2::from_shape_fn((7, 7), |(r, c)| m[(r, c)]).into_pyarray(py)
+        })
+    }
+
+    /// With ``scale=True``: how well the clouds fix the scale once every rigid motion is free to
+    /// compensate (relative to the largest constraint eigenvalue); None when rigid.
+    #[getter]
+    fn scale_relative_eigenvalue(&self) -> Option<f64> {
+        self.0.degeneracy.scale_relative_eigenvalue
+    }
+
+    /// With ``scale=True``: whether the clouds leave the scale free (a flat overlap looks the
+    /// same at every size); the scale is then arbitrary. False when rigid.
+    #[getter]
+    fn scale_free(&self) -> bool {
+        self.0.degeneracy.scale_free()
     }
 
     /// Whether the stage that set the final pose converged (the polish's last pass when it was

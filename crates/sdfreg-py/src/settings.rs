@@ -717,6 +717,8 @@ pub const KEYWORDS: &[Keyword] = keywords! {
     polish: SOURCE, (PyPolishSettings);
     shift_search: REGISTER, (PyShiftSearchSettings);
     model: TARGET, some;
+    scale: REGISTER, some;
+    scale_range: REGISTER, some;
 };
 
 /// The settings keywords of a call, before they are applied to the preset: each `None` keeps
@@ -739,6 +741,8 @@ pub struct SettingsArgs<'py> {
     pub polish: Option<sdfreg_core::PolishSettings>,
     pub shift_search: Option<sdfreg_core::ShiftSearchSettings>,
     pub model: Option<String>,
+    pub scale: Option<bool>,
+    pub scale_range: Option<(f64, f64)>,
 }
 
 impl<'py> SettingsArgs<'py> {
@@ -807,6 +811,16 @@ impl<'py> SettingsArgs<'py> {
         s.lm = self.lm.unwrap_or(s.lm);
         s.polish = self.polish.unwrap_or(s.polish);
         s.shift_search = self.shift_search.unwrap_or(s.shift_search);
+        s.scale.enabled = self.scale.unwrap_or(s.scale.enabled);
+        if let Some((min, max)) = self.scale_range {
+            if !s.scale.enabled {
+                return Err(error::argument("scale_range", "needs scale=True"));
+            }
+            (s.scale.min, s.scale.max) = (Some(min), Some(max));
+            s.scale
+                .validate()
+                .map_err(|e| error::argument("scale_range", e.to_string()))?;
+        }
         if let Some(name) = &self.model {
             s.fit.local.kind = sdfreg_core::ModelKind::from_name(name).ok_or_else(|| {
                 error::argument(

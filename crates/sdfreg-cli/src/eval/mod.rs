@@ -4,7 +4,8 @@
 //! error measure), [`pairs`] finds shapes, seeds and writes pairs, [`stats`] summarises, [`report`]
 //! prints. Per protocol it prints the geodesic rotation and translation errors (mean, RMSE,
 //! median), the paper's per-axis Euler MAE/RMSE, recall and the median time; then the paper's
-//! robustness figures over its four protocols. `--write-pairs` keeps the pairs for other
+//! robustness figures over its four protocols. The scaled protocols (`scaled`, `scaled-indep`)
+//! register with a scale estimated and print the scale error too. `--write-pairs` keeps the pairs for other
 //! programs (`benches/compare.py`).
 
 mod pairs;
@@ -54,6 +55,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         bar.set_message(protocol.name());
         let mut results = Vec::new();
         let mut via = report::ViaModel::default();
+        // The scaled protocols estimate a scale; the others as the flags say.
+        let mut settings = settings.clone();
+        settings.scale.enabled |= protocol.scaled();
         for i in 0..a.pairs {
             let (name, shape) = &shapes[i % shapes.len()];
             let pair = pairs::seeded_pair(shape, protocol, i, a.common.seed);
@@ -65,13 +69,22 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 continue;
             }
             let points = (pair.source.len(), pair.target.len());
+            let truth_scale = protocol.scaled().then_some(pair.scale);
             let r = if a.via_model {
                 // The full call on the same pair, for the time against a stored model as a
                 // share of it, measured in the same run.
                 let full = sdfreg_core::register(&pair.source, &pair.target, None, &settings)
                     .with_context(|| format!("pair {i} ({name})"))?;
                 via.full_times.push(full.time.as_secs_f64());
-                let full = PairResult::new(protocol, i, name, points, &full, &pair.t_target_source);
+                let full = PairResult::new(
+                    protocol,
+                    i,
+                    name,
+                    points,
+                    &full,
+                    &pair.t_target_source,
+                    truth_scale,
+                );
                 via.full_errors.push(full.rotation_error_deg);
                 let start = std::time::Instant::now();
                 let model = SdfModel::fit(&pair.target, &settings);
@@ -88,6 +101,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
                 points,
                 &r,
                 &pair.t_target_source,
+                truth_scale,
             ));
         }
         bar.finish_and_clear();

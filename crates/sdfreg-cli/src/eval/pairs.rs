@@ -69,10 +69,7 @@ pub fn parse_protocols(spec: &str) -> Result<Vec<Protocol>> {
 
 /// Pair `index` of `protocol` made from `shape` with the evaluation's `seed`.
 pub fn seeded_pair(shape: &[Point3<f64>], protocol: Protocol, index: usize, seed: u64) -> Pair {
-    let pi = Protocol::ALL
-        .iter()
-        .position(|p| *p == protocol)
-        .unwrap_or(0);
+    let pi = Protocol::every().position(|p| p == protocol).unwrap_or(0);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
         seed.wrapping_mul(1_000_003)
             .wrapping_add((pi * 100_000 + index) as u64),
@@ -87,9 +84,7 @@ fn write_pair(dir: &Path, pair: &Pair) -> Result<()> {
     write_point_cloud(dir.join("source.ply"), &pair.source)?;
     write_point_cloud(dir.join("target.ply"), &pair.target)?;
     // Every digit, so the ground truth reads back exactly.
-    let gt = matrix_lines(&pair.t_target_source.to_homogeneous(), |v| {
-        format!("{v:.17e}")
-    });
+    let gt = matrix_lines(&pair.matrix(), |v| format!("{v:.17e}"));
     std::fs::write(dir.join("gt.txt"), gt)
         .with_context(|| format!("{}", dir.join("gt.txt").display()))?;
     Ok(())
@@ -117,6 +112,7 @@ pub fn write_indexed(
         "dir": rel,
         "source_points": pair.source.len(),
         "target_points": pair.target.len(),
-        "t_target_source": matrix_rows(&pair.t_target_source.to_homogeneous()),
+        "t_target_source": matrix_rows(&pair.matrix()),
+        "scale": pair.scale,
     }))
 }

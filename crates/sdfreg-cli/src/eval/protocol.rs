@@ -11,6 +11,8 @@
 //! - `Density`: 10,000 target points; the source is the moved 10,000-point sample with 95 % of
 //!   its points removed at random.
 //! - `AnyRot`: as clean, with the rotation drawn uniformly over SO(3) (not in the paper).
+//! - `Scaled`: as clean, then the source scaled by `σ ~ U[0.5, 2]` about the origin (not in the
+//!   paper); the truth is a similarity of scale `1/σ`, registered with a scale estimated.
 //!
 //! A [`Protocol`] is a perturbation plus the sampling: the paper's (the source is the target's
 //! own sample, moved, so every source point has an exact counterpart) or independent (source and
@@ -42,6 +44,8 @@ pub enum Perturbation {
     Density,
     /// As clean, with a rotation drawn uniformly over SO(3).
     AnyRot,
+    /// As clean, the source scaled by σ ~ U[0.5, 2] (a similarity).
+    Scaled,
 }
 
 impl Perturbation {
@@ -53,6 +57,7 @@ impl Perturbation {
             Perturbation::Partial => "partial",
             Perturbation::Density => "density",
             Perturbation::AnyRot => "anyrot",
+            Perturbation::Scaled => "scaled",
         }
     }
 }
@@ -104,6 +109,24 @@ impl Protocol {
         Protocol::independent(Perturbation::Density),
     ];
 
+    /// The similarity protocols (`scaled`, `scaled-indep`): registered with a scale estimated;
+    /// not among [`Self::ALL`], whose pairs stay as they were.
+    pub const SCALED: [Protocol; 2] = [
+        Protocol::paper(Perturbation::Scaled),
+        Protocol::independent(Perturbation::Scaled),
+    ];
+
+    /// Every protocol: [`Self::ALL`], then [`Self::SCALED`] (a pair's seed is its protocol's
+    /// position here).
+    pub fn every() -> impl Iterator<Item = Protocol> {
+        Protocol::ALL.into_iter().chain(Protocol::SCALED)
+    }
+
+    /// Whether the pair's truth is a similarity (registered with a scale).
+    pub fn scaled(&self) -> bool {
+        self.perturbation == Perturbation::Scaled
+    }
+
     /// The name: the perturbation's, with `-indep` for independent sampling.
     pub fn name(&self) -> String {
         let suffix = if self.independent { "-indep" } else { "" };
@@ -120,16 +143,13 @@ impl std::fmt::Display for Protocol {
 impl std::str::FromStr for Protocol {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        Protocol::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<String> = Protocol::ALL.iter().map(|p| p.name()).collect();
-                format!(
-                    "unknown protocol {s:?} (expected one of {})",
-                    names.join(", ")
-                )
-            })
+        Protocol::every().find(|p| p.name() == s).ok_or_else(|| {
+            let names: Vec<String> = Protocol::every().map(|p| p.name()).collect();
+            format!(
+                "unknown protocol {s:?} (expected one of {})",
+                names.join(", ")
+            )
+        })
     }
 }
 
@@ -140,8 +160,20 @@ pub struct Pair {
     pub source: Vec<Point3<f64>>,
     /// The fixed cloud.
     pub target: Vec<Point3<f64>>,
-    /// Ground truth mapping source into target.
+    /// Ground truth mapping source into target (the rigid part of a similarity).
     pub t_target_source: Isometry3<f64>,
+    /// The truth's scale, target units per source unit (`p_target = s R p_source + t`); 1 but
+    /// for the scaled protocols.
+    pub scale: f64,
+}
+
+impl Pair {
+    /// The ground truth as a 4×4 `[s R | t]`.
+    pub fn matrix(&self) -> nalgebra::Matrix4<f64> {
+        let mut m = self.t_target_source.to_homogeneous();
+        m.fixed_view_mut::<3, 3>(0, 0).scale_mut(self.scale);
+        m
+    }
 }
 
 /// Centres `points` on their bounding box and scales the largest side to 1.
@@ -234,8 +266,16 @@ pub fn make_pair<R: Rng>(shape: &[Point3<f64>], protocol: Protocol, rng: &mut R)
         (t.clone(), t)
     };
     let mut source: Vec<Point3<f64>> = source_sample.iter().map(|p| motion * p).collect();
+    let mut scale = 1.0;
     match protocol.perturbation {
         Perturbation::Clean | Perturbation::AnyRot => {}
+        Perturbation::Scaled => {
+            let sigma = rng.random_range(0.5..=2.0);
+            for p in &mut source {
+                p.coords *= sigma;
+            }
+            scale = 1.0 / sigma;
+        }
         Perturbation::Noise => {
             let noise = Normal::new(0.0, 0.02).unwrap();
             for p in &mut target {
@@ -274,6 +314,7 @@ pub fn make_pair<R: Rng>(shape: &[Point3<f64>], protocol: Protocol, rng: &mut R)
         source,
         target,
         t_target_source: motion.inverse(),
+        scale,
     }
 }
 

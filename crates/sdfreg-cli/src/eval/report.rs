@@ -29,6 +29,9 @@ pub fn protocol(s: &Summary, results: &[PairResult]) {
         s.recall_1deg_001,
         s.median_time_s
     );
+    if let Some([mean, median, max]) = s.scale_error_pct {
+        println!("  scale error: mean {mean:.3} %, median {median:.3} %, max {max:.3} %");
+    }
     for r in results.iter().filter(|r| r.rotation_error_deg > 5.0) {
         println!(
             "  failure: pair {} ({}) rotation error {:.1}°, translation error {:.3}",

@@ -21,6 +21,12 @@ pub struct PairResult {
     pub euler_error_deg: [f64; 3],
     /// Per-axis translation errors.
     pub translation_error_xyz: [f64; 3],
+    /// The scale found (target units per source unit) and its error against the truth's,
+    /// percent (`|ŝ/s − 1|·100`): the scaled protocols only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_error_pct: Option<f64>,
     pub converged: bool,
     pub fitness: f64,
     pub iterations: usize,
@@ -45,6 +51,7 @@ impl PairResult {
         points: (usize, usize),
         r: &Registration,
         truth: &Isometry3<f64>,
+        truth_scale: Option<f64>,
     ) -> Self {
         let (re, te) = pose_errors(&r.t_target_source, truth);
         let dt = r.t_target_source.translation.vector - truth.translation.vector;
@@ -58,6 +65,8 @@ impl PairResult {
             translation_error: te,
             euler_error_deg: euler_errors(&r.t_target_source, truth),
             translation_error_xyz: [dt.x, dt.y, dt.z],
+            scale: truth_scale.map(|_| r.scale),
+            scale_error_pct: truth_scale.map(|s| (r.scale / s - 1.0).abs() * 100.0),
             converged: r.converged,
             fitness: r.fitness,
             iterations: r.iterations,
@@ -100,6 +109,9 @@ pub struct Summary {
     pub flagged: usize,
     /// Rotation error mean over the pairs not flagged, degrees.
     pub rotation_mean_unflagged_deg: f64,
+    /// Scale error (percent) mean, median and maximum: the scaled protocols only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scale_error_pct: Option<[f64; 3]>,
     pub median_time_s: f64,
 }
 
@@ -146,6 +158,7 @@ pub fn summarise(protocol: &Protocol, results: &[PairResult]) -> Summary {
         .filter(|r| r.free_motions.is_empty())
         .map(|r| r.rotation_error_deg)
         .collect();
+    let scale: Vec<f64> = results.iter().filter_map(|r| r.scale_error_pct).collect();
     let under = |r: f64, t: f64| {
         results
             .iter()
@@ -170,6 +183,13 @@ pub fn summarise(protocol: &Protocol, results: &[PairResult]) -> Summary {
         recall_1deg_001: under(1.0, 0.01),
         flagged: results.len() - unflagged.len(),
         rotation_mean_unflagged_deg: mean(&unflagged),
+        scale_error_pct: (!scale.is_empty()).then(|| {
+            [
+                mean(&scale),
+                median(&scale),
+                scale.iter().copied().fold(0.0, f64::max),
+            ]
+        }),
         median_time_s: median(&time),
     }
 }

@@ -38,6 +38,18 @@ pub fn transformed_f32(points: &[Point3<f64>], pose: &Isometry3<f64>) -> Vec<[f3
         .collect()
 }
 
+/// `points` scaled by `scale` about the origin, then moved by `pose` (`x = pose · (scale p)`, a
+/// similarity), as f32.
+pub fn scaled_f32(points: &[Point3<f64>], scale: f64, pose: &Isometry3<f64>) -> Vec<[f32; 3]> {
+    points
+        .iter()
+        .map(|p| {
+            let x = pose * Point3::from(p.coords * scale);
+            [x.x as f32, x.y as f32, x.z as f32]
+        })
+        .collect()
+}
+
 /// At most `max` of `points`, drawn without replacement by `rng` and kept in their order; all of
 /// them when there are no more.
 pub(crate) fn subsample(
@@ -186,6 +198,21 @@ impl Normalization {
         let tr = t.translation.vector * self.scale + self.centre - r * self.centre;
         Isometry3::from_parts(Translation3::from(tr), r)
     }
+
+    /// A similarity `x = s R p + t` between unit frames (`t` the isometry's translation) in
+    /// the user's frames: the same `R` and `s`, the translation returned. `N⁻¹ S N`.
+    pub fn similarity_from_unit(&self, t: &Isometry3<f64>, s: f64) -> Isometry3<f64> {
+        let r = t.rotation;
+        let tr = t.translation.vector * self.scale + self.centre - r * self.centre * s;
+        Isometry3::from_parts(Translation3::from(tr), r)
+    }
+
+    /// Inverse of [`Normalization::similarity_from_unit`]: `N S N⁻¹`.
+    pub fn similarity_to_unit(&self, t: &Isometry3<f64>, s: f64) -> Isometry3<f64> {
+        let r = t.rotation;
+        let tr = (t.translation.vector + r * self.centre * s - self.centre) / self.scale;
+        Isometry3::from_parts(Translation3::from(tr), r)
+    }
 }
 
 #[cfg(test)]
@@ -213,6 +240,26 @@ mod tests {
         let via_unit = n.to_unit_f64(&(t * p));
         let direct = u * n.to_unit_f64(&p);
         assert!((via_unit - direct).norm() < 1e-9);
+    }
+
+    #[test]
+    fn similarity_round_trip_and_meaning() {
+        let target = vec![Point3::new(10.0, -3.0, 2.0), Point3::new(14.0, 0.0, 5.0)];
+        let n = Normalization::from_target(&target).unwrap();
+        let t = Isometry3::from_parts(
+            Translation3::new(0.3, -2.0, 1.0),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.2, 0.5, -0.1)),
+        );
+        let s = 1e-3;
+        let u = n.similarity_to_unit(&t, s);
+        let back = n.similarity_from_unit(&u, s);
+        assert!((back.to_homogeneous() - t.to_homogeneous()).norm() < 1e-12);
+        // x = s R p + t in user frames equals u (s p) in unit frames (the source in the
+        // target's unit frame, as the registration puts it).
+        let p = Point3::new(1234.0, -567.0, 89.0);
+        let user = t * Point3::from(p.coords * s);
+        let unit = u * Point3::from(n.to_unit_f64(&p).coords * s);
+        assert!((n.to_unit_f64(&user) - unit).norm() < 1e-9);
     }
 
     #[test]

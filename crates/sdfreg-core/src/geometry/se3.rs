@@ -11,7 +11,7 @@
 //! 4×4 matrix checked to be rigid).
 
 use nalgebra::{
-    Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3, Vector6,
+    Isometry3, Matrix3, Matrix4, Rotation3, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
 };
 
 /// How far a user's 3×3 block may be from a rotation (`|RᵀR − I|` entries, `|det R − 1|`), and
@@ -36,6 +36,20 @@ pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Option<Isometry3<f64>> {
         Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
         rot,
     ))
+}
+
+/// The similarity of a homogeneous 4×4 matrix `[s R t; 0 1]` (`s > 0`): its rigid part
+/// (`R`, `t`) and `s`, the cube root of the 3×3 block's determinant; `None` when that is not
+/// positive or the block divided by it is not a rotation (see [`isometry_from_matrix`]).
+pub fn similarity_from_matrix(m: &Matrix4<f64>) -> Option<(Isometry3<f64>, f64)> {
+    let det = m.fixed_view::<3, 3>(0, 0).determinant();
+    if !det.is_finite() || det <= 0.0 {
+        return None;
+    }
+    let s = det.cbrt();
+    let mut unscaled = *m;
+    unscaled.fixed_view_mut::<3, 3>(0, 0).unscale_mut(s);
+    Some((isometry_from_matrix(&unscaled)?, s))
 }
 
 /// Below this angle (radians) the maps use Taylor expansions instead of the closed forms.
@@ -133,6 +147,25 @@ pub fn exp_se3(xi: &Vector6<f64>) -> Isometry3<f64> {
     )
 }
 
+/// A left step `δ = [ω; v; σ]` of a similarity `x = T (s p)`: `x ↦ e^σ exp([ω; v]^) x`, with
+/// the new scale kept within `[min, max]` (the step's σ shortened to the bound). Returns the new
+/// rigid part and scale.
+pub fn similarity_step(
+    delta: &SVector<f64, 7>,
+    pose: &Isometry3<f64>,
+    s: f64,
+    (min, max): (f64, f64),
+) -> (Isometry3<f64>, f64) {
+    let rigid = exp_se3(&delta.fixed_rows::<6>(0).into_owned()) * pose;
+    let scaled = (s * delta[6].exp()).clamp(min, max);
+    let e = scaled / s;
+    let moved = Isometry3::from_parts(
+        Translation3::from(rigid.translation.vector * e),
+        rigid.rotation,
+    );
+    (moved, scaled)
+}
+
 /// The twist `ξ = [ω; v]` with `exp_se3(ξ) = T` and `|ω| ≤ π`.
 pub fn log_se3(t: &Isometry3<f64>) -> Vector6<f64> {
     let w = log_so3(&t.rotation.to_rotation_matrix());
@@ -166,6 +199,23 @@ pub fn rotation_angle(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+
+    #[test]
+    fn a_similarity_matrix_splits_into_its_rigid_part_and_scale() {
+        let t = exp_se3(&Vector6::new(0.3, -0.2, 0.9, 1.0, 2.0, -3.0));
+        let mut m = t.to_homogeneous();
+        m.fixed_view_mut::<3, 3>(0, 0).scale_mut(0.002);
+        let (rigid, s) = similarity_from_matrix(&m).unwrap();
+        assert!((s - 0.002).abs() < 1e-15);
+        assert!((rigid.to_homogeneous() - t.to_homogeneous()).amax() < 1e-9);
+        // A reflection (negative determinant) and a shear are not similarities.
+        let mut mirror = m;
+        mirror.fixed_view_mut::<3, 1>(0, 0).neg_mut();
+        assert!(similarity_from_matrix(&mirror).is_none());
+        let mut shear = m;
+        shear[(0, 1)] += 0.001;
+        assert!(similarity_from_matrix(&shear).is_none());
+    }
 
     fn vectors() -> Vec<Vector3<f64>> {
         let axes = [

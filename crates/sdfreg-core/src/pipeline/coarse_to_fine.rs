@@ -18,12 +18,12 @@ use crate::base::error::Error;
 use crate::field::Field;
 use crate::fit::settings::FitSettings;
 use crate::geometry::cloud::transformed_f32;
-use crate::pipeline::multistart::{least_motion, nn_score, MultistartSettings};
+use crate::pipeline::multistart::{least_motion, solver_score, MultistartSettings};
 use crate::pipeline::report::Stage;
 use crate::pipeline::robust::KernelPolicy;
 use crate::pipeline::surface::Surface;
 use crate::solve::kernel::Kernel;
-use crate::solve::lm::{Lm, LmSettings, StopReason};
+use crate::solve::lm::{Lm, StopReason};
 
 /// The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -89,21 +89,19 @@ pub(crate) struct Schedule<'a> {
     pub coarse_to_fine: &'a CoarseToFineSettings,
     /// The tie margin and truncation of the halfway drop and the final pick.
     pub multistart: &'a MultistartSettings,
-    /// The solver.
-    pub lm: &'a LmSettings,
     /// Φ's refinement steps and learning rate.
     pub fit: &'a FitSettings,
 }
 
 /// The alternations of Φ refinement and LM steps over every hypothesis (unit frame), from
-/// `hypotheses`; returns the best-fitting one's solver. Without `refine`, Φ stays as it is (a
+/// `hypotheses` (a solver each, rigid or with a scale); returns the best-fitting one's solver. Without `refine`, Φ stays as it is (a
 /// stored model's) and only the LM steps run; with it, `fit` becomes a private copy the first
 /// time it is trained. [`crate::MultistartSettings::tie`] decides the halfway drop and the
 /// final pick.
 pub(crate) fn alternate<S: Surface>(
     fit: &mut Cow<'_, S>,
     source: &[Point3<f64>],
-    hypotheses: &[Isometry3<f64>],
+    hypotheses: Vec<Lm>,
     s: &Schedule<'_>,
     policy: KernelPolicy,
     refine: bool,
@@ -116,17 +114,13 @@ pub(crate) fn alternate<S: Surface>(
         c.alternations
     };
     let (tie, tau2) = (s.multistart.tie, s.multistart.truncation.powi(2));
-    let mut lms: Vec<(usize, Lm)> = hypotheses
-        .iter()
-        .map(|p| Lm::new(*p, s.lm))
-        .enumerate()
-        .collect();
+    let mut lms: Vec<(usize, Lm)> = hypotheses.into_iter().enumerate().collect();
     for k in 0..alternations {
         let kappa = policy.kappa(k, alternations);
         // One evaluation of Φ at the moved source serves the kernel's scale and the gate.
         let mut kernels = Vec::with_capacity(lms.len());
         for (_, lm) in &lms {
-            let moved = transformed_f32(source, &lm.pose);
+            let moved = lm.moved(source);
             if !policy.is_robust() {
                 if refine {
                     fit.to_mut().add_source_queries(&moved);
@@ -159,7 +153,7 @@ pub(crate) fn alternate<S: Surface>(
         if k + 1 == alternations / 2 && lms.len() > 1 {
             let scores: Vec<f64> = lms
                 .iter()
-                .map(|(_, lm)| nn_score(fit.tree(), source, &lm.pose, tau2))
+                .map(|(_, lm)| solver_score(fit.tree(), source, lm, tau2))
                 .collect();
             let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
             lms = lms
@@ -177,7 +171,7 @@ pub(crate) fn alternate<S: Surface>(
     } else {
         let scored: Vec<(f64, Isometry3<f64>)> = lms
             .iter()
-            .map(|(_, lm)| (nn_score(fit.tree(), source, &lm.pose, tau2), lm.pose))
+            .map(|(_, lm)| (solver_score(fit.tree(), source, lm, tau2), lm.pose))
             .collect();
         least_motion(&scored, tie)
     };
@@ -206,7 +200,7 @@ pub(crate) fn final_lm<S: Surface>(
         steps: usize,
         policy: KernelPolicy,
     ) -> StopReason {
-        let kernel = kernel_at(phi, source, &lm.pose, policy, policy.kappa_end());
+        let kernel = kernel_of(phi, || lm.moved(source), policy, policy.kappa_end());
         lm.run(phi, source, kernel, steps)
     }
     if c.final_lm_baked && !fit.is_local() {
@@ -225,8 +219,19 @@ pub(crate) fn kernel_at<F: Field + ?Sized>(
     policy: KernelPolicy,
     kappa: f64,
 ) -> Kernel {
+    kernel_of(phi, || transformed_f32(source, pose), policy, kappa)
+}
+
+/// The policy's kernel for the points `moved` gives (unit frame, asked only when the scale is
+/// adaptive), with `kappa`.
+fn kernel_of<F: Field + ?Sized>(
+    phi: &F,
+    moved: impl FnOnce() -> Vec<[f32; 3]>,
+    policy: KernelPolicy,
+    kappa: f64,
+) -> Kernel {
     if matches!(policy, KernelPolicy::Adaptive { .. }) {
-        let (values, _) = phi.eval_points(&transformed_f32(source, pose), false);
+        let (values, _) = phi.eval_points(&moved(), false);
         policy.kernel(&values, kappa)
     } else {
         policy.kernel(&[], kappa)

@@ -7,6 +7,7 @@
 //! - [`multistart`] (stage 3), [`coarse_to_fine`] (stages 4–5), [`rerun`] (stage 6, the robust re-run; [`robust`]: the kernel's
 //!   settings and policy),
 //!   [`polish`] (stage 7), [`shift_search`] (stage 8);
+//! - [`scale`]: the similarity's settings and scale starts (off by default);
 //! - [`registration`]: stage 9 and the result, [`report`]: what each stage did;
 //! - [`register`]: the entry points, one line per stage.
 
@@ -18,6 +19,7 @@ pub(crate) mod registration;
 pub(crate) mod report;
 pub(crate) mod rerun;
 pub(crate) mod robust;
+pub(crate) mod scale;
 pub(crate) mod settings;
 pub(crate) mod shift_search;
 pub(crate) mod surface;

@@ -131,11 +131,23 @@ pub(crate) fn nn_score(
     pose: &Isometry3<f64>,
     tau2: f64,
 ) -> f64 {
-    let sum: f64 = transformed_f32(points, pose)
+    moved_score(tree, &transformed_f32(points, pose), 1.0, tau2)
+}
+
+/// [`nn_score`] of a solver's pose (and scale: distances in the source's units, see
+/// [`Lm::distance_factor`]).
+pub(crate) fn solver_score(tree: &Tree, points: &[Point3<f64>], lm: &Lm, tau2: f64) -> f64 {
+    moved_score(tree, &lm.moved(points), lm.distance_factor(), tau2)
+}
+
+/// Mean of the `moved` points' squared nearest-target distances times `factor`, each truncated at
+/// `tau2`.
+fn moved_score(tree: &Tree, moved: &[[f32; 3]], factor: f64, tau2: f64) -> f64 {
+    let sum: f64 = moved
         .iter()
-        .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64).min(tau2))
+        .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64 * factor).min(tau2))
         .sum();
-    sum / points.len().max(1) as f64
+    sum / moved.len().max(1) as f64
 }
 
 /// Index of the candidate with the least rotation among those whose score is within

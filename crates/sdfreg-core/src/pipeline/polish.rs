@@ -22,6 +22,11 @@
 //! re-estimate, in ≤ 50 iterations (15 got 1.9°, 30 got 0.8°). Per-point terms are summed in a
 //! fixed order: results do not depend on the threads.
 //!
+//! **With a scale** (similarity registration), the step gains a seventh component, the change of
+//! `ln s`, with residuals measured in the source's units as in the LM
+//! ([`crate::solve::lm`]): row `[xᵢ × nᵢ; nᵢ; nᵢ·xᵢ − rᵢ] / k`, `k` the scale relative to the
+//! polish's start, pulled towards it by the same prior.
+//!
 //! The polish only refines: if it would move the source points by more than
 //! [`PolishSettings::max_shift`] (RMS), the SDF pose is kept (the polish had latched onto the
 //! wrong points).
@@ -29,13 +34,13 @@
 use std::sync::OnceLock;
 
 use kiddo::SquaredEuclidean;
-use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Point3, SMatrix, SVector, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::base::check;
 use crate::base::error::Error;
 use crate::geometry::planes::{local_plane, point_normal, TargetPlanes};
-use crate::geometry::se3::{exp_se3, log_se3};
+use crate::geometry::se3::{exp_se3, log_se3, similarity_step};
 use crate::geometry::tree::{median_nn, Tree};
 use crate::solve::kernel::{inlier_scale, mad_scale, Kernel};
 use crate::solve::lm::{jacobian_row, StopReason};
@@ -185,6 +190,27 @@ pub struct PolishOutcome {
     pub snapped: bool,
     /// Whether the polish moved too far and was undone.
     pub undone: bool,
+    /// The scale after the polish (similarity registration); 1 when rigid.
+    pub scale: f64,
+}
+
+/// The scale a polish may change (similarity registration): the source's points enter
+/// pre-scaled by the scale the polish starts from, and `k`, the factor on top of it (1 at the
+/// start), stays within `bounds`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct FreeScale {
+    /// The factor on top of the starting scale.
+    pub k: f64,
+    /// Bounds on `k`.
+    pub bounds: (f64, f64),
+}
+
+/// The point `p` moved by `pose` after scaling by `scale`'s factor (when free).
+fn moved(pose: &Isometry3<f64>, scale: Option<FreeScale>, p: &Point3<f64>) -> Point3<f64> {
+    match scale {
+        None => pose * p,
+        Some(f) => pose * Point3::from(p.coords * f.k),
+    }
 }
 
 /// Which stage [`gauss_newton`] runs.
@@ -202,13 +228,21 @@ enum Residuals {
 /// points (row `[x × n; n]`; `cache` is the point's own, kept across iterations); returns the
 /// pose, the iterations run, why it stopped and the last step (rotation in radians, translation
 /// in normalised units; infinite when none was taken).
+#[allow(clippy::type_complexity)]
 fn gauss_newton<C: Default + Send>(
     source: &[Point3<f64>],
     pose: Isometry3<f64>,
+    mut scale: Option<FreeScale>,
     s: &PolishSettings,
     stage: Residuals,
     residual: impl Fn(&Point3<f64>, &mut C) -> Option<(f64, Vector3<f64>)> + Sync,
-) -> (Isometry3<f64>, usize, StopReason, [f64; 2]) {
+) -> (
+    Isometry3<f64>,
+    Option<FreeScale>,
+    usize,
+    StopReason,
+    [f64; 2],
+) {
     let mut caches: Vec<C> = source.iter().map(|_| C::default()).collect();
     let start = pose;
     let mut pose = pose;
@@ -216,18 +250,23 @@ fn gauss_newton<C: Default + Send>(
     let mut last = [f64::INFINITY; 2];
     while done < s.iterations {
         done += 1;
-        let terms: Vec<Option<(f64, Vector6<f64>)>> = source
+        // (residual, rigid row, scale column): with a free scale, all in the source's units.
+        let terms: Vec<Option<(f64, Vector6<f64>, f64)>> = source
             .par_iter()
             .zip(caches.par_iter_mut())
             .map(|(p, cache)| {
-                let x = pose * p;
+                let x = moved(&pose, scale, p);
                 let (r, n) = residual(&x, cache)?;
-                Some((r, jacobian_row(&x.coords, &n)))
+                let row = jacobian_row(&x.coords, &n);
+                Some(match scale {
+                    None => (r, row, 0.0),
+                    Some(f) => (r / f.k, row / f.k, (n.dot(&x.coords) - r) / f.k),
+                })
             })
             .collect();
-        let used: Vec<&(f64, Vector6<f64>)> = terms.iter().flatten().collect();
-        if used.len() < 6 {
-            return (pose, done, StopReason::NoDecrease, last);
+        let used: Vec<&(f64, Vector6<f64>, f64)> = terms.iter().flatten().collect();
+        if used.len() < 6 + scale.is_some() as usize {
+            return (pose, scale, done, StopReason::NoDecrease, last);
         }
         let mut abs: Vec<f64> = used.iter().map(|t| t.0.abs()).collect();
         abs.sort_by(f64::total_cmp);
@@ -238,10 +277,16 @@ fn gauss_newton<C: Default + Send>(
         });
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
-        for (r, j) in used {
+        let (mut h_js, mut h_ss, mut g_s) = (Vector6::zeros(), 0.0, 0.0);
+        for (r, j, e) in used {
             let w = kernel.rho_weight(*r).1;
             h += w * j * j.transpose();
             g += w * r * j;
+            if scale.is_some() {
+                h_js += w * e * j;
+                h_ss += w * e * e;
+                g_s += w * r * e;
+            }
         }
         // Planes: a weak prior (`prior_weight` × trace) towards the starting pose keeps
         // directions the planes do not constrain where the SDF put them: a surface of
@@ -257,8 +302,33 @@ fn gauss_newton<C: Default + Send>(
             h[(k, k)] += damping;
             g[k] += damping * drift[k];
         }
+        if let Some(f) = scale {
+            h_ss += damping;
+            if stage == Residuals::Planes {
+                g_s += damping * f.k.ln();
+            }
+            let mut a = SMatrix::<f64, 7, 7>::zeros();
+            a.fixed_view_mut::<6, 6>(0, 0).copy_from(&h);
+            a.fixed_view_mut::<6, 1>(0, 6).copy_from(&h_js);
+            a.fixed_view_mut::<1, 6>(6, 0).copy_from(&h_js.transpose());
+            a[(6, 6)] = h_ss;
+            let b = SVector::<f64, 7>::from_fn(|i, _| if i < 6 { g[i] } else { g_s });
+            let Some(delta) = a.cholesky().map(|ch| -ch.solve(&b)) else {
+                return (pose, scale, done, StopReason::NoDecrease, last);
+            };
+            let (p, k) = similarity_step(&delta, &pose, f.k, f.bounds);
+            last = [
+                delta.fixed_rows::<3>(0).norm().max((k / f.k).ln().abs()),
+                delta.fixed_rows::<3>(3).norm(),
+            ];
+            (pose, scale) = (p, Some(FreeScale { k, ..f }));
+            if last[0] < s.tolerance && last[1] < s.tolerance {
+                return (pose, scale, done, StopReason::SmallStep, last);
+            }
+            continue;
+        }
         let Some(delta) = h.cholesky().map(|ch| -ch.solve(&g)) else {
-            return (pose, done, StopReason::NoDecrease, last);
+            return (pose, scale, done, StopReason::NoDecrease, last);
         };
         pose = exp_se3(&delta) * pose;
         last = [
@@ -266,16 +336,18 @@ fn gauss_newton<C: Default + Send>(
             delta.fixed_rows::<3>(3).norm(),
         ];
         if last[0] < s.tolerance && last[1] < s.tolerance {
-            return (pose, done, StopReason::SmallStep, last);
+            return (pose, scale, done, StopReason::SmallStep, last);
         }
     }
-    (pose, done, StopReason::MaxIterations, last)
+    (pose, scale, done, StopReason::MaxIterations, last)
 }
 
 /// Polishes `pose` (unit frame, maps `source` into the target frame) against the `target`
 /// points, their k-d `tree` and median `spacing` ([`crate::geometry::tree::target_spacing`]); with `planes`, against
 /// the planes at the target's points ([`TargetPlanes`], scenes), else against planes fitted at
-/// the moved source points.
+/// the moved source points. With `scale` (similarity registration: the scale `pose` goes with
+/// and its bounds), the scale is polished too; else it is 1.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn polish(
     source: &[Point3<f64>],
     target: &[[f32; 3]],
@@ -284,6 +356,34 @@ pub(crate) fn polish(
     pose: &Isometry3<f64>,
     s: &PolishSettings,
     planes: Option<&TargetPlanes>,
+    scale: Option<(f64, (f64, f64))>,
+) -> PolishOutcome {
+    let Some((s0, (min, max))) = scale else {
+        return polish_from(source, target, tree, spacing, pose, s, planes, None);
+    };
+    let scaled: Vec<Point3<f64>> = source.iter().map(|p| p * s0).collect();
+    let free = FreeScale {
+        k: 1.0,
+        bounds: (min / s0, max / s0),
+    };
+    let out = polish_from(&scaled, target, tree, spacing, pose, s, planes, Some(free));
+    PolishOutcome {
+        scale: out.scale * s0,
+        ..out
+    }
+}
+
+/// [`polish`] with the scale (when free) as a factor on the already scaled `source`.
+#[allow(clippy::too_many_arguments)]
+fn polish_from(
+    source: &[Point3<f64>],
+    target: &[[f32; 3]],
+    tree: &Tree,
+    spacing: f64,
+    pose: &Isometry3<f64>,
+    s: &PolishSettings,
+    planes: Option<&TargetPlanes>,
+    scale: Option<FreeScale>,
 ) -> PolishOutcome {
     let start = *pose;
     // A scene's steps are small against its points' spacing long before they are against its
@@ -305,9 +405,10 @@ pub(crate) fn polish(
         planes,
         spacing,
     };
-    let mut out = plane_passes(source, &target, start, s);
-    if s.iterations > 0 && s.snap && worth_snapping(source, &target, &out.pose) {
-        snap(source, &target, s, &mut out);
+    let mut out = plane_passes(source, &target, start, scale, s);
+    let free = scale.map(|f| FreeScale { k: out.scale, ..f });
+    if s.iterations > 0 && s.snap && worth_snapping(source, &target, &out.pose, free) {
+        snap(source, &target, s, free, &mut out);
     }
     undo_if_far(source, start, s.max_shift, out)
 }
@@ -330,6 +431,7 @@ fn plane_passes(
     source: &[Point3<f64>],
     target: &Target<'_>,
     start: Isometry3<f64>,
+    mut scale: Option<FreeScale>,
     s: &PolishSettings,
 ) -> PolishOutcome {
     let Target {
@@ -352,18 +454,18 @@ fn plane_passes(
     let (mut stop_reason, mut last_step) = (StopReason::MaxIterations, [f64::INFINITY; 2]);
     for d in gates {
         let d2 = d * d;
-        let (p, n, stop, last) =
-            gauss_newton(
-                source,
-                pose,
-                s,
-                Residuals::Planes,
-                |x, cache| match planes {
-                    Some(planes) => planes.residual(points, tree, x, d2, cache),
-                    None => local_plane(points, tree, x, k, d2, cache),
-                },
-            );
-        (pose, stop_reason, last_step) = (p, stop, last);
+        let (p, k, n, stop, last) = gauss_newton(
+            source,
+            pose,
+            scale,
+            s,
+            Residuals::Planes,
+            |x, cache| match planes {
+                Some(planes) => planes.residual(points, tree, x, d2, cache),
+                None => local_plane(points, tree, x, k, d2, cache),
+            },
+        );
+        (pose, scale, stop_reason, last_step) = (p, k, stop, last);
         iterations += n;
     }
     PolishOutcome {
@@ -373,16 +475,22 @@ fn plane_passes(
         last_step,
         snapped: false,
         undone: false,
+        scale: scale.map_or(1.0, |f| f.k),
     }
 }
 
 /// Whether the snap is worth trying from `pose`: always against planes at the source points;
 /// against a scene's planes only when the source already lies near the target's own points (a
 /// scan is never a copy of another, and the snap's iterations cost as much as a pass).
-fn worth_snapping(source: &[Point3<f64>], target: &Target<'_>, pose: &Isometry3<f64>) -> bool {
+fn worth_snapping(
+    source: &[Point3<f64>],
+    target: &Target<'_>,
+    pose: &Isometry3<f64>,
+    scale: Option<FreeScale>,
+) -> bool {
     target.planes.is_none() || {
         let moved = source.iter().map(|p| {
-            let x = pose * p;
+            let x = moved(pose, scale, p);
             [x.x as f32, x.y as f32, x.z as f32]
         });
         median_nn(moved, target.tree, false) < SNAP_TRY_RATIO * target.spacing
@@ -394,7 +502,13 @@ fn worth_snapping(source: &[Point3<f64>], target: &Target<'_>, pose: &Isometry3<
 /// in `out` only when it got there: the source points' median distance to the nearest target
 /// point below [`SNAP_RATIO`] × the target's median spacing. On independent samples or noise it
 /// never does (the local planes' result stands).
-fn snap(source: &[Point3<f64>], target: &Target<'_>, s: &PolishSettings, out: &mut PolishOutcome) {
+fn snap(
+    source: &[Point3<f64>],
+    target: &Target<'_>,
+    s: &PolishSettings,
+    scale: Option<FreeScale>,
+    out: &mut PolishOutcome,
+) {
     let Target {
         points,
         tree,
@@ -404,8 +518,13 @@ fn snap(source: &[Point3<f64>], target: &Target<'_>, s: &PolishSettings, out: &m
     let k = s.neighbours;
     let normals: Vec<OnceLock<Option<Vector3<f64>>>> =
         (0..points.len()).map(|_| OnceLock::new()).collect();
-    let (candidate, n, stop, last) =
-        gauss_newton(source, out.pose, s, Residuals::Points, |x, _: &mut ()| {
+    let (candidate, k, n, stop, last) = gauss_newton(
+        source,
+        out.pose,
+        scale,
+        s,
+        Residuals::Points,
+        |x, _: &mut ()| {
             let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
             if nn.distance as f64 > s.max_distance * s.max_distance {
                 return None;
@@ -417,14 +536,16 @@ fn snap(source: &[Point3<f64>], target: &Target<'_>, s: &PolishSettings, out: &m
                 n.dot(&(x.coords - Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64))),
                 n,
             ))
-        });
+        },
+    );
     out.iterations += n;
     let on_target = source.iter().map(|p| {
-        let x = candidate * p;
+        let x = moved(&candidate, k, p);
         [x.x as f32, x.y as f32, x.z as f32]
     });
     if median_nn(on_target, tree, false) < SNAP_RATIO * spacing {
         (out.pose, out.stop_reason, out.last_step) = (candidate, stop, last);
+        out.scale = k.map_or(1.0, |f| f.k);
         out.snapped = true;
     }
 }
@@ -437,14 +558,16 @@ fn undo_if_far(
     max_shift: f64,
     out: PolishOutcome,
 ) -> PolishOutcome {
+    let k = out.scale;
     let shift2 = source
         .iter()
-        .map(|p| (out.pose * p - start * p).norm_squared())
+        .map(|p| (out.pose * Point3::from(p.coords * k) - start * p).norm_squared())
         .sum::<f64>()
         / source.len().max(1) as f64;
     let undone = shift2.sqrt() > max_shift;
     PolishOutcome {
         pose: if undone { start } else { out.pose },
+        scale: if undone { 1.0 } else { k },
         undone,
         ..out
     }
@@ -489,6 +612,7 @@ mod tests {
             &start,
             &PolishSettings::default(),
             None,
+            None,
         );
         assert!(!out.undone);
         let err = truth.inverse() * out.pose;
@@ -518,6 +642,7 @@ mod tests {
             target_spacing(&target, &tree),
             &start,
             &PolishSettings::default(),
+            None,
             None,
         );
         assert!(!out.undone && !out.snapped);

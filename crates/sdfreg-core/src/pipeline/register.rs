@@ -21,7 +21,10 @@
 //! [`Registration::stages`] records what each stage did.
 //!
 //! **Frames**: the result's `t_target_source` maps source coordinates into the target frame,
-//! `p_target = R p_source + t`, in the units of the inputs.
+//! `p_target = R p_source + t`, in the units of the inputs. With a scale
+//! ([`crate::ScaleSettings::enabled`], [`crate::pipeline::scale`]) it is the rigid part of the
+//! similarity `p_target = s R p_source + t`, `s` in [`Registration::scale`]: stage 3 starts from
+//! each scale start, and stages 4–7 carry the scale as a seventh unknown.
 
 use std::borrow::Cow;
 use std::time::Instant;
@@ -33,7 +36,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::field::Field;
-use crate::geometry::cloud::{subsample, usable, Normalization};
+use crate::geometry::cloud::{scaled_f32, subsample, usable, Normalization};
 use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
@@ -41,10 +44,12 @@ use crate::pipeline::registration::{measure, Registration, Trace};
 use crate::pipeline::report::{InitialReport, Stage, StageTimes};
 use crate::pipeline::rerun::robust_rerun;
 use crate::pipeline::robust::{outside_share, KernelPolicy};
+use crate::pipeline::scale::scale_starts;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::pipeline::shift_search::search;
 use crate::pipeline::surface::Surface;
 use crate::pipeline::target::prefit;
+use crate::solve::lm::{Lm, ScaleDof};
 
 /// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
 /// target) replaces the multi-start when given.
@@ -153,8 +158,13 @@ fn register_drawn<S: Surface>(
     };
     let first = run(s, s.robust.first_run());
     let outside = |r: &Registration| {
-        let pose = unit.norm.pose_to_unit(&r.t_target_source);
-        let moved = crate::geometry::cloud::transformed_f32(&unit.source, &pose);
+        let moved = if s.scale.enabled {
+            let pose = unit.norm.similarity_to_unit(&r.t_target_source, r.scale);
+            scaled_f32(&unit.source, r.scale, &pose)
+        } else {
+            let pose = unit.norm.pose_to_unit(&r.t_target_source);
+            crate::geometry::cloud::transformed_f32(&unit.source, &pose)
+        };
         outside_share(&moved, surface.tree(), surface.spacing())
     };
     let mut r = robust_rerun(first, s, outside, run);
@@ -183,6 +193,7 @@ fn run<S: Surface>(
     };
     let mut fit = Cow::Borrowed(surface);
     let (hypotheses, initial) = initial_pose(&*fit, unit, init, s, policy, rng, progress);
+    let starts: Vec<Isometry3<f64>> = hypotheses.iter().map(|lm| lm.pose).collect();
     lap(&mut times.initial);
     let Alternated {
         mut lm,
@@ -191,7 +202,7 @@ fn run<S: Surface>(
     } = alternate(
         &mut fit,
         &unit.source,
-        &hypotheses,
+        hypotheses,
         &s.schedule(),
         policy,
         refine,
@@ -205,21 +216,29 @@ fn run<S: Surface>(
     let polish_settings = s.polish.for_target(fit.is_local());
     let planes = (fit.is_local() || polish_settings.target_planes)
         .then(|| fit.target_planes(polish_settings.neighbours));
-    let polish_from = |start: &Isometry3<f64>| {
+    let polish_with = |source: &[Point3<f64>], start: &Isometry3<f64>, scale| {
         polish(
-            &unit.source,
+            source,
             fit.target(),
             fit.tree(),
             fit.spacing(),
             start,
             &polish_settings,
             planes.as_deref(),
+            scale,
         )
     };
-    let polished = polish_from(&lm.pose);
+    let free_scale = lm.scale.map(|d| (d.s, (d.min, d.max)));
+    let polished = polish_with(&unit.source, &lm.pose, free_scale);
     lap(&mut times.polish);
+    // With a scale, the search moves the source at the polished scale.
+    let source: Cow<'_, [Point3<f64>]> = match free_scale {
+        None => Cow::Borrowed(&unit.source),
+        Some(_) => Cow::Owned(unit.source.iter().map(|p| p * polished.scale).collect()),
+    };
+    let polish_from = |start: &Isometry3<f64>| polish_with(&source, start, None);
     let searched = search(
-        &unit.source,
+        &source,
         fit.target(),
         fit.tree(),
         &polished.pose,
@@ -229,7 +248,7 @@ fn run<S: Surface>(
     );
     lap(&mut times.shift_search);
     let trace = Trace {
-        start: hypotheses[winner],
+        start: starts[winner],
         initial,
         survivors,
         winner,
@@ -239,15 +258,9 @@ fn run<S: Surface>(
         polished,
         searched,
         times,
+        scale: free_scale.map(|_| polished.scale),
     };
-    measure(
-        &unit.source,
-        &unit.norm,
-        &*fit,
-        s,
-        policy.is_robust(),
-        trace,
-    )
+    measure(&source, &unit.norm, &*fit, s, policy.is_robust(), trace)
 }
 
 /// The source in the target's unit frame.
@@ -275,8 +288,9 @@ fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, E
     })
 }
 
-/// Stage 3: the hypotheses (unit frame) the coarse-to-fine loop starts from — the caller's
-/// guess, or the multi-start's — and the report of where they came from.
+/// Stage 3: the hypotheses (unit frame; a solver each, with the scale when it is estimated) the
+/// coarse-to-fine loop starts from — the caller's guess, or the multi-start's, from each scale
+/// start — and the report of where they came from.
 fn initial_pose<S: Surface>(
     fit: &S,
     unit: &Unit,
@@ -285,26 +299,68 @@ fn initial_pose<S: Surface>(
     policy: KernelPolicy,
     rng: &mut ChaCha8Rng,
     progress: &(dyn Fn(Stage) + Sync),
-) -> (Vec<Isometry3<f64>>, InitialReport) {
-    if let Some(t) = init {
-        let given = InitialReport {
-            given: true,
-            starts: 0,
-            hypotheses: 1,
-            rotation_deg: 0.0,
+) -> (Vec<Lm>, InitialReport) {
+    let mut report = InitialReport {
+        given: init.is_some(),
+        starts: 0,
+        hypotheses: 0,
+        rotation_deg: 0.0,
+    };
+    if !s.scale.enabled {
+        let poses = match init {
+            Some(t) => vec![unit.norm.pose_to_unit(t)],
+            None => {
+                let found = multistart(fit, &unit.source, s, policy, rng, progress);
+                report.starts = found.starts;
+                found.poses
+            }
         };
-        return (vec![unit.norm.pose_to_unit(t)], given);
+        report.hypotheses = poses.len();
+        return (
+            poses.into_iter().map(|p| Lm::new(p, &s.lm)).collect(),
+            report,
+        );
     }
+    let (scales, (min, max)) = scale_starts(&s.scale, &unit.source, fit.target());
+    let dof = |s: f64| ScaleDof {
+        s,
+        min,
+        max,
+        reference: scales[0],
+    };
+    let mut solvers = Vec::new();
+    for &scale in &scales {
+        let poses = match init {
+            Some(t) => vec![unit.norm.similarity_to_unit(t, scale)],
+            None => {
+                let scaled: Vec<Point3<f64>> = unit.source.iter().map(|p| p * scale).collect();
+                let found = multistart(fit, &scaled, s, policy, rng, progress);
+                report.starts += found.starts;
+                found.poses
+            }
+        };
+        solvers.extend(
+            poses
+                .into_iter()
+                .map(|p| Lm::with_scale(p, dof(scale), &s.lm)),
+        );
+    }
+    report.hypotheses = solvers.len();
+    (solvers, report)
+}
+
+/// The multi-start's hypotheses for `source` (unit frame) against `fit`.
+fn multistart<S: Surface>(
+    fit: &S,
+    source: &[Point3<f64>],
+    s: &RegisterSettings,
+    policy: KernelPolicy,
+    rng: &mut ChaCha8Rng,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> crate::pipeline::multistart::Hypotheses {
     progress(Stage::Multistart);
     let kernel = |phi: &dyn Field, points: &[Point3<f64>], pose: &Isometry3<f64>| {
         kernel_at(phi, points, pose, policy, policy.kappa_start())
     };
-    let found = initial_hypotheses(fit, &unit.source, &s.multistart, &s.lm, kernel, rng);
-    let report = InitialReport {
-        given: false,
-        starts: found.starts,
-        hypotheses: found.poses.len(),
-        rotation_deg: 0.0,
-    };
-    (found.poses, report)
+    initial_hypotheses(fit, source, &s.multistart, &s.lm, kernel, rng)
 }

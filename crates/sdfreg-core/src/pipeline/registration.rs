@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use nalgebra::{Isometry3, Matrix4, Matrix6, Point3};
+use nalgebra::{Isometry3, Matrix4, Matrix6, Point3, SMatrix, Similarity3};
 
 use crate::geometry::cloud::Normalization;
 use crate::pipeline::polish::PolishOutcome;
@@ -22,7 +22,12 @@ use crate::solve::measure::quality;
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Registration {
     /// Maps source coordinates into the target frame (`p_target = R p_source + t`), user units.
+    /// With a scale ([`crate::ScaleSettings::enabled`]) the rigid part of the similarity
+    /// `p_target = s R p_source + t` ([`Self::scale`], [`Self::similarity`]).
     pub t_target_source: Isometry3<f64>,
+    /// The scale `s` of the similarity, target units per source unit; 1 when rigid.
+    #[serde(default = "unit_scale")]
+    pub scale: f64,
     /// Whether the stage that set the final pose converged (the polish's last pass when it was
     /// applied, else the final LM): see [`Self::stop_reason`].
     pub converged: bool,
@@ -45,6 +50,10 @@ pub struct Registration {
     /// `JᵀJ` (6×6) at the result in the target frame, twist `[ω (rad); v (user units)]` about the
     /// target origin: the information matrix of a left perturbation of `t_target_source`.
     pub information: Matrix6<f64>,
+    /// With a scale: `JᵀJ` (7×7) of the left step `[ω; v; σ]` (σ the change of `ln s`, about the
+    /// target origin, user units); `None` when rigid.
+    #[serde(default)]
+    pub similarity_information: Option<SMatrix<f64, 7, 7>>,
     /// Which motions the data leave (nearly) free — e.g. the spin of a surface of revolution
     /// about its axis. When [`Degeneracy::is_degenerate`], the pose along those motions is
     /// arbitrary. Points in the target frame, user units.
@@ -60,10 +69,23 @@ pub struct Registration {
     pub stage_times: StageTimes,
 }
 
+fn unit_scale() -> f64 {
+    1.0
+}
+
 impl Registration {
-    /// `t_target_source` as a homogeneous 4×4 matrix.
+    /// The result as a homogeneous 4×4 matrix `[s R | t]` (`s` = 1 when rigid).
     pub fn matrix(&self) -> Matrix4<f64> {
-        self.t_target_source.to_homogeneous()
+        let mut m = self.t_target_source.to_homogeneous();
+        if self.scale != 1.0 {
+            m.fixed_view_mut::<3, 3>(0, 0).scale_mut(self.scale);
+        }
+        m
+    }
+
+    /// The result as a similarity (`p_target = s R p_source + t`; `s` = 1 when rigid).
+    pub fn similarity(&self) -> Similarity3<f64> {
+        Similarity3::from_isometry(self.t_target_source, self.scale)
     }
 }
 
@@ -84,10 +106,12 @@ pub(crate) struct Trace {
     pub(crate) searched: Searched,
     /// Stages 3–8's wall times (the measure's is added by [`measure`]).
     pub(crate) times: StageTimes,
+    /// The scale, when it is estimated (`source` then enters [`measure`] scaled by it).
+    pub(crate) scale: Option<f64>,
 }
 
 /// Stage 9: the result in the user's frame — its quality against the target and Φ, and what
-/// each stage did.
+/// each stage did. `source`: unit frame, scaled by the scale when there is one.
 pub(crate) fn measure<S: Surface>(
     source: &[Point3<f64>],
     norm: &Normalization,
@@ -134,9 +158,20 @@ pub(crate) fn measure<S: Surface>(
             change: change(&t.polished.pose, &t.searched.pose),
         },
     };
-    let q = quality(fit.phi(), &t.searched.moved, norm, s.free_motion_ratio);
+    let q = quality(
+        fit.phi(),
+        &t.searched.moved,
+        norm,
+        s.free_motion_ratio,
+        t.scale.is_some(),
+    );
     Registration {
-        t_target_source: norm.pose_from_unit(&t.searched.pose),
+        t_target_source: match t.scale {
+            None => norm.pose_from_unit(&t.searched.pose),
+            Some(scale) => norm.similarity_from_unit(&t.searched.pose, scale),
+        },
+        scale: t.scale.unwrap_or(1.0),
+        similarity_information: q.similarity_information,
         converged: stop_reason.converged(),
         stop_reason,
         iterations: t.lm.iterations,
@@ -196,6 +231,7 @@ mod tests {
             last_step,
             snapped: false,
             undone: false,
+            scale: 1.0,
         }
     }
 

@@ -20,6 +20,7 @@ use crate::pipeline::coarse_to_fine::{CoarseToFineSettings, Schedule};
 use crate::pipeline::multistart::MultistartSettings;
 use crate::pipeline::polish::PolishSettings;
 use crate::pipeline::robust::{RobustMode, RobustSettings};
+use crate::pipeline::scale::ScaleSettings;
 use crate::pipeline::shift_search::ShiftSearchSettings;
 use crate::solve::degeneracy::FREE_MOTION_RATIO;
 use crate::solve::lm::LmSettings;
@@ -48,6 +49,9 @@ pub struct RegisterSettings {
     /// The search for translations that lay more source points onto the target than the SDF's
     /// pose does.
     pub shift_search: ShiftSearchSettings,
+    /// Similarity registration: a scale estimated with the pose. Off by default.
+    #[serde(default)]
+    pub scale: ScaleSettings,
     /// A motion whose constraint eigenvalue is below this fraction of the largest is reported as
     /// free in [`crate::Registration::degeneracy`]. Default [`FREE_MOTION_RATIO`] (2·10⁻³).
     pub free_motion_ratio: f64,
@@ -75,6 +79,7 @@ impl Default for RegisterSettings {
             robust: RobustSettings::default(),
             polish: PolishSettings::default(),
             shift_search: ShiftSearchSettings::default(),
+            scale: ScaleSettings::default(),
             free_motion_ratio: FREE_MOTION_RATIO,
             max_source_points: 4096,
             max_target_points: 100_000,
@@ -163,7 +168,6 @@ impl RegisterSettings {
         Schedule {
             coarse_to_fine: &self.coarse_to_fine,
             multistart: &self.multistart,
-            lm: &self.lm,
             fit: &self.fit,
         }
     }
@@ -178,6 +182,7 @@ impl RegisterSettings {
         self.robust.validate()?;
         self.polish.validate()?;
         self.shift_search.validate()?;
+        self.scale.validate()?;
         check::count_at_least("max_source_points", self.max_source_points, MIN_POINTS)?;
         check::count_at_least("max_target_points", self.max_target_points, MIN_POINTS)?;
         check::fraction_below_one("free_motion_ratio", self.free_motion_ratio)?;

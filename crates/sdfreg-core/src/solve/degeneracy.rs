@@ -95,6 +95,15 @@ pub struct Degeneracy {
     pub relative_eigenvalues: [f64; 6],
     /// The free motions (relative eigenvalue below the threshold), least constrained first.
     pub free: Vec<FreeMotion>,
+    /// With a scale (similarity registration): how well the data fix it once every rigid motion
+    /// is let free to compensate — the Schur complement of the scale in the normalised matrix
+    /// (scale column `∇Φ·(x − c)/ρ`), divided by the largest eigenvalue. A plane leaves it at 0
+    /// (it looks the same at every scale); a sphere fixes it (its radius). `None` when rigid.
+    #[serde(default)]
+    pub scale_relative_eigenvalue: Option<f64>,
+    /// The threshold the free motions were judged by.
+    #[serde(default)]
+    pub ratio: f64,
 }
 
 impl Degeneracy {
@@ -139,12 +148,61 @@ impl Degeneracy {
         Self {
             relative_eigenvalues: relative,
             free,
+            scale_relative_eigenvalue: None,
+            ratio,
         }
+    }
+
+    /// Adds the scale's constraint ([`Self::scale_relative_eigenvalue`]) for the moved source
+    /// points `x` and the gradients `grad` of [`Self::analyse`].
+    pub fn analyse_scale(&mut self, x: &[Point3<f64>], grad: &[Vector3<f64>]) {
+        let n = x.len().min(grad.len());
+        if n == 0 {
+            return;
+        }
+        let c = x[..n].iter().map(|p| p.coords).sum::<Vector3<f64>>() / n as f64;
+        let rho = (x[..n]
+            .iter()
+            .map(|p| (p.coords - c).norm_squared())
+            .sum::<f64>()
+            / n as f64)
+            .sqrt()
+            .max(f64::MIN_POSITIVE);
+        let (mut m, mut b, mut d) = (Matrix6::zeros(), Vector6::zeros(), 0.0);
+        for (p, g) in x[..n].iter().zip(&grad[..n]) {
+            let y = (p.coords - c) / rho;
+            let j = jacobian_row(&y, g);
+            let e = g.dot(&y);
+            if !(j.iter().all(|v| v.is_finite()) && e.is_finite()) {
+                continue;
+            }
+            m += j * j.transpose();
+            b += e * j;
+            d += e * e;
+        }
+        let largest = SymmetricEigen::new(m)
+            .eigenvalues
+            .max()
+            .max(d)
+            .max(f64::MIN_POSITIVE);
+        // Rigid directions the data leave free cannot compensate anything: a pseudo-inverse.
+        let schur = match m.pseudo_inverse(1e-9 * largest) {
+            Ok(inv) => d - (b.transpose() * inv * b)[0],
+            Err(_) => d,
+        };
+        self.scale_relative_eigenvalue = Some((schur / largest).max(0.0));
     }
 
     /// Whether some motion is free.
     pub fn is_degenerate(&self) -> bool {
-        !self.free.is_empty()
+        !self.free.is_empty() || self.scale_free()
+    }
+
+    /// Whether the scale is free (similarity registration): its relative eigenvalue below the
+    /// threshold.
+    pub fn scale_free(&self) -> bool {
+        self.scale_relative_eigenvalue
+            .is_some_and(|v| v < self.ratio)
     }
 }
 

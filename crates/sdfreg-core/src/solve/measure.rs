@@ -4,14 +4,14 @@
 //! Entry points: [`inlier_stats`], [`quality`].
 
 use kiddo::SquaredEuclidean;
-use nalgebra::{Matrix6, Vector3};
+use nalgebra::{Matrix6, SMatrix, Vector3};
 use rayon::prelude::*;
 
 use crate::field::Field;
 use crate::geometry::cloud::Normalization;
 use crate::geometry::tree::Tree;
 use crate::solve::degeneracy::Degeneracy;
-use crate::solve::lm::jacobian_row;
+use crate::solve::lm::{jacobian_row, similarity_row};
 
 /// Fitness — the fraction of the (already moved) `points` within `sqrt(thr2)` of a target
 /// point — and the RMS distance of those inliers, normalised units.
@@ -43,14 +43,18 @@ pub(crate) struct Quality {
     pub cost: f64,
     /// The motions the data leave free.
     pub degeneracy: Degeneracy,
+    /// With a scale: `JᵀJ` (7×7) of the step `[ω; v; σ]`, about the target origin, user units.
+    pub similarity_information: Option<SMatrix<f64, 7, 7>>,
 }
 
-/// [`Quality`] of the unit-frame `moved` source points against `phi`.
+/// [`Quality`] of the unit-frame `moved` source points against `phi`; with `scaled` (a
+/// similarity), also the 7×7 information and whether the scale is free.
 pub(crate) fn quality<F: Field + ?Sized>(
     field: &F,
     moved: &[[f32; 3]],
     norm: &Normalization,
     ratio: f64,
+    scaled: bool,
 ) -> Quality {
     let (phi, grads) = field.eval_points(moved, true);
     let mut information = Matrix6::zeros();
@@ -66,9 +70,22 @@ pub(crate) fn quality<F: Field + ?Sized>(
         moved_user.push(xu);
         normals.push(n);
     }
+    let mut degeneracy = Degeneracy::analyse(&moved_user, &normals, ratio);
+    let similarity_information = scaled.then(|| {
+        degeneracy.analyse_scale(&moved_user, &normals);
+        moved_user
+            .iter()
+            .zip(&normals)
+            .map(|(x, n)| {
+                let j = similarity_row(&x.coords, n, 0.0);
+                j * j.transpose()
+            })
+            .sum()
+    });
     Quality {
         information,
         cost: cost / moved.len() as f64,
-        degeneracy: Degeneracy::analyse(&moved_user, &normals, ratio),
+        degeneracy,
+        similarity_information,
     }
 }

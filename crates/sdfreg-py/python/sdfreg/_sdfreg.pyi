@@ -398,7 +398,23 @@ class Registration:
     @property
     def transformation(self) -> npt.NDArray[np.float64]:
         """4×4 array ``[R t; 0 1]`` mapping source coordinates into the target frame:
-        ``p_target = R @ p_source + t``, in the clouds' units."""
+        ``p_target = R @ p_source + t``, in the clouds' units; with ``scale=True`` the
+        similarity ``[s R t; 0 1]``, ``p_target = s R @ p_source + t``."""
+    @property
+    def scale(self) -> float:
+        """The scale ``s`` of the similarity (target units per source unit); 1.0 when rigid."""
+    @property
+    def similarity_information(self) -> Optional[npt.NDArray[np.float64]]:
+        """With ``scale=True``: the 7×7 JᵀJ of the step [rotation (rad); translation (units);
+        log-scale], about the target origin; None when rigid."""
+    @property
+    def scale_relative_eigenvalue(self) -> Optional[float]:
+        """With ``scale=True``: how well the clouds fix the scale once every rigid motion is
+        free to compensate (relative to the largest constraint eigenvalue); None when rigid."""
+    @property
+    def scale_free(self) -> bool:
+        """With ``scale=True``: whether the clouds leave the scale free (a flat overlap looks the
+        same at every size); the scale is then arbitrary. False when rigid."""
     @property
     def converged(self) -> bool:
         """Whether the stage that set the final pose converged (the polish's last pass when it
@@ -491,6 +507,8 @@ class _PipelineKeywords(TypedDict, total=False):
     multistart: Optional[MultistartSettings]
     coarse_to_fine: Optional[CoarseToFineSettings]
     shift_search: Optional[ShiftSearchSettings]
+    scale: Optional[bool]
+    scale_range: Optional[Tuple[float, float]]
 
 class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, total=False):
     """``register_many``'s settings (its ``threads`` is an argument of its own)."""
@@ -560,6 +578,13 @@ def register(
         lm: The Levenberg–Marquardt solver (:class:`LmSettings`).
         polish: The final point-to-plane steps (:class:`PolishSettings`).
         shift_search: The translation search (:class:`ShiftSearchSettings`).
+        scale: Estimate a scale with the pose (similarity registration: millimetres against
+            metres, an SfM reconstruction against a LiDAR map). ``transformation`` is then
+            ``[s R | t]`` and :attr:`Registration.scale` holds ``s``; with ``init``, the scale
+            of its 3×3 block is the start. Default False (rigid).
+        scale_range: ``(min, max)``: the scale (target units per source unit) stays within
+            them; needs ``scale=True``. Default 0.1 to 10 times the unit factor (1, 1000 or
+            0.001) the clouds' extents point to.
         model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
             ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
             points: rooms, streets), or ``"auto"`` (local when the target's largest side is at
@@ -572,8 +597,9 @@ def register(
 
     Raises:
         ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
-            fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform; a
-            setting is out of range.
+            fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform (with
+            ``scale=True``: not a positive scale times a rotation); a setting is out of range
+            (``scale_range`` with min ≥ max or a bound ≤ 0).
     """
 
 def register_many(
