@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 /// Each folder of `src/` with its rank, bottom-up. `io` sits beside the layers above
 /// `geometry` (a mesh file is sampled into a cloud); `sim` beside them at the top (procedural
 /// data for tests and benches: nothing below may need it).
-const LAYERS: [(&str, u32); 10] = [
+const LAYERS: [(&str, u32); 11] = [
     ("base", 0),
     ("geometry", 1),
     ("io", 2),
@@ -23,7 +23,8 @@ const LAYERS: [(&str, u32); 10] = [
     ("pipeline", 6),
     ("model", 7),
     ("batch", 8),
-    ("sim", 9),
+    ("views", 9),
+    ("sim", 10),
 ];
 
 /// One module: its path under `src/` and its own code, tests and comments removed.

@@ -6,3 +6,4 @@ mod layers;
 mod model;
 mod register;
 mod scenes;
+mod views;

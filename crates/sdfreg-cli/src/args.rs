@@ -32,6 +32,10 @@ pub enum Command {
     Demo(DemoArgs),
     /// Evaluate on the paper's ModelNet40 protocols over a folder of shapes.
     Eval(EvalArgs),
+    /// Align many scans (views of one object or scene) into the frame of one of them, from no
+    /// initial guesses; writes each scan's pose (poses.json), and on request one model and one
+    /// mesh of them all.
+    Align(AlignArgs),
 }
 
 /// The robust kernel's modes (`RobustMode`), as flags name them.
@@ -357,6 +361,48 @@ pub struct BatchArgs {
     pub input: InputArgs,
     /// Settings of every pair; --threads is the number of pairs registered at once (0 = one
     /// per core), each on one thread.
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct AlignArgs {
+    /// The scans (.ply, .pcd, .xyz, .txt, .csv), each in its own frame; at least two.
+    #[arg(required = true)]
+    pub scans: Vec<PathBuf>,
+    /// Where to write the poses (JSON): per scan `file`, `transformation` (4×4, the scan's
+    /// coordinates into the anchor's frame; null for a scan left out, with `left_out` saying
+    /// why) and `fitness`; `edges` (each pair registered, its fitness, whether the pose graph
+    /// kept it); `time_ms` and `stage_ms`.
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Also write one model of all the aligned scans (.sdfm). (`--model` is the kind of Φ, as
+    /// for every command that fits one.)
+    #[arg(long, value_name = "FILE")]
+    pub save_model: Option<PathBuf>,
+    /// Also write the zero level set of that model as a mesh (.ply).
+    #[arg(long)]
+    pub mesh: Option<PathBuf>,
+    /// Grid cells along the largest side for --mesh (4 to 1024).
+    #[arg(long, default_value_t = 256)]
+    pub mesh_resolution: usize,
+    /// The scan (0-based, in the order given) whose frame the poses map into.
+    #[arg(long, default_value_t = 0)]
+    pub anchor: usize,
+    /// Approximate initial poses: a poses.json (its `scans[].transformation`, one per scan, in
+    /// order; a turntable's angles, odometry) [default: none, every pair from nothing].
+    #[arg(long)]
+    pub init: Option<PathBuf>,
+    /// Joint refinement rounds: each scan registered against one model of all the others (it
+    /// did not help on the measured sets; see the guide's Many views page).
+    #[arg(long, default_value_t = 0)]
+    pub joint_rounds: usize,
+    /// Overwrite --output, --save-model and --mesh if they exist.
+    #[arg(long)]
+    pub force: bool,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// The pairwise registrations' settings [default: --preset scans].
     #[command(flatten)]
     pub common: Common,
 }

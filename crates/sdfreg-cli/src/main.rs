@@ -2,6 +2,7 @@
 //! Exit codes: 0 success, 2 bad input or failure (one line on stderr naming the problem),
 //! 3 `batch` finished but some pairs failed (their errors are in its output).
 
+mod align;
 mod args;
 mod batch;
 mod eval;
@@ -40,6 +41,7 @@ fn main() -> ExitCode {
         Command::Batch(a) => batch::run(a),
         Command::Demo(a) => cmd_demo(a),
         Command::Eval(a) => eval::run(a),
+        Command::Align(a) => align::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -54,7 +56,7 @@ fn main() -> ExitCode {
                 }
             }
             eprintln!("sdfreg: {}", line.replace('\n', " "));
-            if e.is::<batch::SomeFailed>() {
+            if e.is::<batch::SomeFailed>() || e.is::<align::SomeLeftOut>() {
                 ExitCode::from(3)
             } else {
                 ExitCode::from(2)

@@ -1029,3 +1029,105 @@ fn register_with_scale_finds_millimetres_against_metres_and_writes_the_scaled_so
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--scale"));
 }
+
+/// `n` partial views of a blob (70 % each, cut by planes of different directions), each in a
+/// frame of its own, written as `view_K.ply` into `dir`; returns each view's true pose in the
+/// first view's frame.
+fn blob_views(dir: &Path, n: usize) -> Vec<Isometry3<f64>> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
+    let shape = sdfreg_core::sim::shapes::blob(6000, &mut rng);
+    let mut poses = Vec::new();
+    for k in 0..n {
+        let a = std::f64::consts::TAU * k as f64 / n as f64;
+        let d = Vector3::new(a.cos(), a.sin(), 0.3);
+        let mut dots: Vec<f64> = shape.iter().map(|p| p.coords.dot(&d)).collect();
+        dots.sort_by(f64::total_cmp);
+        let cut = dots[dots.len() * 3 / 10];
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1 * k as f64, -0.2, 0.05 * k as f64),
+            UnitQuaternion::from_scaled_axis(Vector3::new(0.2, -0.1 * k as f64, 0.3)),
+        );
+        let view: Vec<Point3<f64>> = shape
+            .iter()
+            .filter(|p| p.coords.dot(&d) > cut)
+            .map(|p| pose.inverse() * p)
+            .collect();
+        write_xyz(&dir.join(format!("view_{k}.ply")), &view);
+        poses.push(pose);
+    }
+    let first = poses[0].inverse();
+    poses.iter().map(|p| first * p).collect()
+}
+
+#[test]
+fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let truth = blob_views(dir.path(), 3);
+    std::fs::write(dir.path().join("broken.xyz"), "1 2 3\n4 five 6\n").unwrap();
+    let (poses, model, mesh) = (
+        dir.path().join("poses.json"),
+        dir.path().join("merged.sdfm"),
+        dir.path().join("merged.ply"),
+    );
+    let mut cmd = sdfreg();
+    cmd.arg("align");
+    for f in ["view_0.ply", "view_1.ply", "broken.xyz", "view_2.ply"] {
+        cmd.arg(dir.path().join(f));
+    }
+    let out = cmd
+        .args(QUICK)
+        .arg("-o")
+        .arg(&poses)
+        .arg("--save-model")
+        .arg(&model)
+        .arg("--mesh")
+        .arg(&mesh)
+        .args(["--mesh-resolution", "48"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("broken.xyz: left out") && err.contains("broken.xyz:2: expected three"),
+        "{err}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
+    let scans = v["scans"].as_array().unwrap();
+    assert_eq!(scans.len(), 4);
+    assert!(scans[2]["transformation"].is_null() && scans[2]["left_out"].is_string());
+    for (k, t) in [(0, truth[0]), (1, truth[1]), (3, truth[2])] {
+        let rows: Vec<Vec<f64>> =
+            serde_json::from_value(scans[k]["transformation"].clone()).unwrap();
+        let m = Matrix4::from_fn(|r, c| rows[r][c]);
+        let err = (m - t.to_homogeneous()).amax();
+        assert!(err < 0.01, "scan {k}: {m} vs {}", t.to_homogeneous());
+        assert!(scans[k]["fitness"].as_f64().unwrap() > 0.5);
+    }
+    assert!(!v["edges"].as_array().unwrap().is_empty());
+    assert!(v["stage_ms"]["pairs"].as_f64().unwrap() > 0.0);
+    // The merged model loads, and its mesh is a surface.
+    assert!(sdfreg_core::SdfModel::load(&model).is_ok());
+    let (vertices, triangles) = sdfreg_core::io::read_mesh(&mesh).unwrap();
+    assert!(vertices.len() > 100 && !triangles.is_empty());
+    // Fewer than two readable scans: a clear error, exit 2; outputs are not overwritten.
+    let out = sdfreg()
+        .arg("align")
+        .arg(dir.path().join("view_0.ply"))
+        .arg(dir.path().join("broken.xyz"))
+        .arg("-o")
+        .arg(dir.path().join("other.json"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("at least two scans"));
+    let out = sdfreg()
+        .arg("align")
+        .arg(dir.path().join("view_0.ply"))
+        .arg(dir.path().join("view_1.ply"))
+        .arg("-o")
+        .arg(&poses)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}

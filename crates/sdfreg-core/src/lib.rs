@@ -59,6 +59,8 @@
 //! 6. [`model`]: [`SdfModel`], [`MeshModel`], tracking, the `.sdfm` format ([`model::file`]).
 //! 7. [`batch`]: [`register_many`], [`register_each`], and the results file of `sdfreg batch`
 //!    ([`batch::log`]).
+//! 8. [`views`]: many scans into one frame — [`align()`] (pairwise registrations through stored
+//!    models, a pose graph, a joint refinement), [`Alignment`].
 //!
 //! Beside the layers: [`io`] (above `geometry`: a mesh file is sampled into a cloud) and [`sim`]
 //! (procedural [`sim::shapes`] and the LiDAR simulator [`sim::lidar`], for tests and benches).
@@ -93,6 +95,7 @@ pub mod model;
 mod pipeline;
 pub mod sim;
 pub mod solve;
+pub mod views;
 
 pub use base::error::{Error, IoError, Role};
 pub use batch::pairs::{register_each, register_many, Pair, PairTarget};
@@ -117,3 +120,4 @@ pub use pipeline::shift_search::ShiftSearchSettings;
 pub use solve::degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use solve::kernel::{Kernel, MAD_TO_SIGMA, SCALE_SIGMAS};
 pub use solve::lm::{LmSettings, StopReason};
+pub use views::align::{align, AlignSettings, AlignTimes, Alignment, Edge};

@@ -10,6 +10,7 @@
 //!
 //! Stubs and docstrings for Python users: `python/sdfreg/_sdfreg.pyi`.
 
+mod align;
 mod batch;
 mod convert;
 mod error;
@@ -245,6 +246,8 @@ fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -
 #[pymodule]
 fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(register, m)?)?;
+    m.add_function(wrap_pyfunction!(align::align, m)?)?;
+    m.add_class::<align::PyAlignment>()?;
     m.add_function(wrap_pyfunction!(batch::register_many, m)?)?;
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;

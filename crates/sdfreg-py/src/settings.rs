@@ -645,6 +645,9 @@ pub enum Caller {
     Track,
     /// `fit(target, **settings)`: the keywords of the target's fit.
     Fit,
+    /// `align(scans, *, init, anchor, joint_rounds, **settings)`: the pairs' settings, from the
+    /// `"scans"` preset (no scale: the views of one scan campaign share their units).
+    Align,
 }
 
 impl Caller {
@@ -655,6 +658,7 @@ impl Caller {
             Caller::RegisterMany => "register_many",
             Caller::Track => "track",
             Caller::Fit => "fit",
+            Caller::Align => "align",
         }
     }
 }
@@ -669,12 +673,13 @@ pub struct Keyword {
     set: for<'py> fn(&mut SettingsArgs<'py>, &Bound<'py, PyAny>) -> PyResult<()>,
 }
 
-use Caller::{Fit, Register, RegisterMany, Track};
-const ALL: &[Caller] = &[Register, RegisterMany, Track, Fit];
-const REGISTER: &[Caller] = &[Register, RegisterMany];
-const SOURCE: &[Caller] = &[Register, RegisterMany, Track];
-const TARGET: &[Caller] = &[Register, RegisterMany, Fit];
-const ONE_CALL: &[Caller] = &[Register, Track, Fit];
+use Caller::{Align, Fit, Register, RegisterMany, Track};
+const ALL: &[Caller] = &[Register, RegisterMany, Track, Fit, Align];
+const REGISTER: &[Caller] = &[Register, RegisterMany, Align];
+const SIMILARITY: &[Caller] = &[Register, RegisterMany];
+const SOURCE: &[Caller] = &[Register, RegisterMany, Track, Align];
+const TARGET: &[Caller] = &[Register, RegisterMany, Fit, Align];
+const ONE_CALL: &[Caller] = &[Register, Track, Fit, Align];
 
 /// The [`KEYWORDS`] table: `name: callers, how;` stores the value of keyword `name` in the
 /// field of [`SettingsArgs`] of the same name — `value` as it is, `some` wrapped in `Some`,
@@ -717,8 +722,8 @@ pub const KEYWORDS: &[Keyword] = keywords! {
     polish: SOURCE, (PyPolishSettings);
     shift_search: REGISTER, (PyShiftSearchSettings);
     model: TARGET, some;
-    scale: REGISTER, some;
-    scale_range: REGISTER, some;
+    scale: SIMILARITY, some;
+    scale_range: SIMILARITY, some;
 };
 
 /// The settings keywords of a call, before they are applied to the preset: each `None` keeps

@@ -60,6 +60,7 @@ def test_stub_keywords_are_the_bindings() -> None:
         "register_many": "_ManyKeywords",
         "track": "_TrackKeywords",
         "fit": "_FitKeywords",
+        "align": "_AlignKeywords",
     }
     for caller, stub_class in callers.items():
         expected = {name for name, takers in binding.items() if caller in takers}

@@ -85,6 +85,12 @@ pub enum Error {
     /// A target mesh that cannot serve as a distance field.
     #[error("target mesh: {0}")]
     InvalidMesh(String),
+    /// Aligning views needs at least two scans.
+    #[error("aligning views needs at least two scans, got {found}")]
+    TooFewScans {
+        /// Scans given.
+        found: usize,
+    },
 }
 
 impl Error {

@@ -387,6 +387,32 @@ pub fn room_pair() -> ScanPair {
     )
 }
 
+/// A loop of `views` scans of the room of [`room_pair`] by `sensor`, 1.2 m above the floor at
+/// poses around an ellipse (1.6 × 0.9 m semi-axes about (0.2, 0.1)), each turned 360°/`views`
+/// further: the scans (each in its sensor's frame, noise seed `k + 1`) and each scan's true pose
+/// in the first scan's frame.
+pub fn room_loop(views: usize, sensor: &Sensor) -> (Vec<Vec<Point3<f64>>>, Vec<Isometry3<f64>>) {
+    let scene = Scene::room(&mut ChaCha8Rng::seed_from_u64(2));
+    let poses: Vec<Isometry3<f64>> = (0..views)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / views.max(1) as f64;
+            level_pose(
+                0.2 + 1.6 * a.cos(),
+                0.1 + 0.9 * a.sin(),
+                1.2,
+                (360.0 * k as f64 / views.max(1) as f64) + 20.0 * (3.0 * a).sin(),
+            )
+        })
+        .collect();
+    let scans = poses
+        .iter()
+        .enumerate()
+        .map(|(k, p)| scan(&scene, sensor, p, k as u64 + 1))
+        .collect();
+    let first = poses[0].inverse();
+    (scans, poses.iter().map(|p| first * p).collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

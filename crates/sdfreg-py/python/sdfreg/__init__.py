@@ -7,10 +7,12 @@ Tuning goes in settings objects, one per stage: ``register(s, t, lm=LmSettings(m
 ``preset="scans"`` suits scans that overlap only in part. ``fit(target)`` fits the target's
 SDF once; ``register(source, model)`` then registers without fitting, and the model saves,
 loads and pickles. ``register_many(pairs)`` registers many pairs on every core;
-``sdfreg.dask`` spreads them over a Dask cluster.
+``sdfreg.dask`` spreads them over a Dask cluster. ``align(scans)`` puts many views into one
+frame.
 """
 
 from ._sdfreg import (
+    Alignment,
     CoarseToFineSettings,
     FitSettings,
     FreeMotion,
@@ -25,6 +27,7 @@ from ._sdfreg import (
     SdfModel,
     ShiftSearchSettings,
     __version__,
+    align,
     fit,
     load_model,
     mesh_model,
@@ -36,6 +39,7 @@ from ._sdfreg import (
 )
 
 __all__ = [
+    "Alignment",
     "CoarseToFineSettings",
     "FitSettings",
     "FreeMotion",
@@ -50,6 +54,7 @@ __all__ = [
     "SdfModel",
     "ShiftSearchSettings",
     "__version__",
+    "align",
     "fit",
     "load_model",
     "mesh_model",

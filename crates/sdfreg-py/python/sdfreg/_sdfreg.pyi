@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 __version__: str
 __all__ = [
+    "Alignment",
     "CoarseToFineSettings",
     "FitSettings",
     "FreeMotion",
@@ -39,6 +40,7 @@ __all__ = [
     "_registration_from_json",
     "_settings_from_json",
     "_settings_keywords",
+    "align",
     "fit",
     "load_model",
     "mesh_model",
@@ -507,16 +509,21 @@ class _PipelineKeywords(TypedDict, total=False):
     multistart: Optional[MultistartSettings]
     coarse_to_fine: Optional[CoarseToFineSettings]
     shift_search: Optional[ShiftSearchSettings]
+
+class _ScaleKeywords(TypedDict, total=False):
     scale: Optional[bool]
     scale_range: Optional[Tuple[float, float]]
 
-class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, total=False):
+class _AlignKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, total=False):
+    """``align``'s settings of its pairwise registrations."""
+
+class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, _ScaleKeywords, total=False):
     """``register_many``'s settings (its ``threads`` is an argument of its own)."""
 
 class _RegisterKeywords(_ManyKeywords, _ThreadsKeyword, total=False):
     """``register``'s and ``SdfModel.register``'s settings."""
 
-class _MeshKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, _PipelineKeywords, total=False):
+class _MeshKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, _PipelineKeywords, _ScaleKeywords, total=False):
     """``MeshModel.register``'s settings (nothing is fitted to a mesh)."""
 
 class _TrackKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, total=False):
@@ -601,6 +608,78 @@ def register(
             ``scale=True``: not a positive scale times a rotation); a setting is out of range
             (``scale_range`` with min ≥ max or a bound ≤ 0).
     """
+
+def align(
+    scans: Iterable[npt.ArrayLike],
+    *,
+    init: Optional[Iterable[npt.ArrayLike]] = None,
+    anchor: int = 0,
+    joint_rounds: int = 0,
+    **settings: Unpack[_AlignKeywords],
+) -> Alignment:
+    """Aligns many scans (views of one object or scene) into the frame of one of them.
+
+    Each scan gets a stored model; the pairs are registered through them (all pairs up to 16
+    scans, else each scan with its next 3 in order, wrapping round); the registrations that fit
+    (fitness ≥ 0.3), that a cycle through a third scan confirms and that agree with the spanning
+    tree of the best ones form a pose graph, solved by robust Gauss–Newton on SE(3); then each
+    scan is registered against one model of all the others
+    (``joint_rounds`` times, none by default). No initial guesses are needed.
+
+    Args:
+        scans: A sequence of (N, 3) point arrays, each in its own frame, the same units.
+        init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
+            angles, odometry), or None.
+        anchor: The scan whose frame the poses map into.
+        joint_rounds: Joint refinement rounds (each scan against one model of the others);
+            0 skips.
+        seed: Seed of every random choice.
+        threads: Worker threads; 0 = one per core.
+        preset: The pairs' preset, ``"scans"`` by default (the robust kernel from the start).
+
+    The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
+
+    Returns:
+        The :class:`Alignment`.
+
+    Raises:
+        ValueError: fewer than two scans can be used, a scan is not an (N, 3) float array, the
+            anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
+            of range.
+    """
+
+@final
+class Alignment:
+    """The outcome of :func:`align`. Read-only."""
+
+    @property
+    def poses(self) -> List[Optional[npt.NDArray[np.float64]]]:
+        """Per scan, the 4×4 mapping its coordinates into the anchor's frame; None for a scan left
+        out."""
+    @property
+    def left_out(self) -> List[Tuple[int, str]]:
+        """The scans left out, as ``(index, why)``."""
+    @property
+    def anchor(self) -> int:
+        """The index of the anchor scan."""
+    @property
+    def fitness(self) -> List[float]:
+        """Per scan, the best fitness of a kept pairwise registration it is part of."""
+    @property
+    def edges(self) -> List[Dict[str, Any]]:
+        """Every pairwise registration, as dicts: ``target``, ``source`` (scan indices; the
+        source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph), and
+        ``registration`` (a :class:`Registration`) or ``error``."""
+    @property
+    def model(self) -> SdfModel:
+        """One model of all the placed scans in the anchor's frame (mesh it with
+        ``model.mesh()``, save it with ``model.save(path)``)."""
+    @property
+    def time_s(self) -> float:
+        """Wall time, seconds."""
+    @property
+    def stage_times_s(self) -> Dict[str, float]:
+        """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``joint``."""
 
 def register_many(
     pairs: Iterable[

@@ -1,0 +1,143 @@
+"""Many views: the Stanford bunny's 10 scans through `sdfreg.align` and through Open3D's multiway
+pipeline (its tutorial's recipe), accuracy against the ground truth and time, in one run.
+
+    benches/compare-env                       # once: a venv with open3d and the sdfreg wheel
+    .venv-compare/bin/python benches/multiway.py --data ../shared/data [--shuffle] [--foreign]
+
+Open3D, as in its multiway-registration tutorial with the global start its docs pair it with:
+per pair, FPFH features (voxel 2 mm, features at 5 voxels) matched by RANSAC (1.5 voxels),
+refined by point-to-plane ICP (coarse at 15 voxels, fine at 1.5); pose-graph edges between
+consecutive scans as odometry, the others as uncertain loop closures, kept only when the ICP's
+fitness is at least 0.3; then `global_optimization` (Levenberg–Marquardt, line processes,
+edge prune threshold 0.25, reference node 0). sdfreg: `sdfreg.align(scans)` with its defaults.
+Errors are each scan's pose against `gt_scan_to_world.txt`, relative to the first scan.
+`--shuffle` runs the scans in a seeded random order (the anchor stays bun000); `--foreign`
+replaces bun315 by a ModelNet chair scaled to the bunny's size (it must be left out).
+Skips with a message when --data is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import sdfreg
+from common import pose_errors
+from realscans import read_gt_scans
+
+SCANS = ["bun000", "bun045", "bun090", "bun180", "bun270", "bun315", "chin", "ear_back",
+         "top2", "top3"]
+
+
+def open3d_multiway(scans: list[np.ndarray]) -> list[np.ndarray]:
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    voxel = 0.002
+    clouds, downs, feats = [], [], []
+    for s in scans:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s))
+        down = pcd.voxel_down_sample(voxel)
+        down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2 * voxel, max_nn=30))
+        feats.append(reg.compute_fpfh_feature(
+            down, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100)))
+        clouds.append(pcd)
+        downs.append(down)
+    o3d.utility.random.seed(0)
+
+    def pair(i: int, j: int):
+        coarse = reg.registration_ransac_based_on_feature_matching(
+            downs[i], downs[j], feats[i], feats[j], True, 1.5 * voxel,
+            reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+             reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            reg.RANSACConvergenceCriteria(100000, 0.999))
+        icp = reg.registration_icp(downs[i], downs[j], 15 * voxel, coarse.transformation,
+                                   reg.TransformationEstimationPointToPlane())
+        icp = reg.registration_icp(downs[i], downs[j], 1.5 * voxel, icp.transformation,
+                                   reg.TransformationEstimationPointToPlane())
+        info = reg.get_information_matrix_from_point_clouds(
+            downs[i], downs[j], 1.5 * voxel, icp.transformation)
+        return icp.transformation, info, icp.fitness
+
+    graph = reg.PoseGraph()
+    odometry = np.eye(4)
+    graph.nodes.append(reg.PoseGraphNode(odometry))
+    n = len(scans)
+    for i in range(n):
+        for j in range(i + 1, n):
+            t, info, fitness = pair(i, j)  # maps scan i into scan j
+            if j == i + 1:
+                odometry = t @ odometry
+                graph.nodes.append(reg.PoseGraphNode(np.linalg.inv(odometry)))
+                graph.edges.append(reg.PoseGraphEdge(i, j, t, info, uncertain=False))
+            elif fitness >= 0.3:
+                graph.edges.append(reg.PoseGraphEdge(i, j, t, info, uncertain=True))
+    reg.global_optimization(
+        graph, reg.GlobalOptimizationLevenbergMarquardt(),
+        reg.GlobalOptimizationConvergenceCriteria(),
+        reg.GlobalOptimizationOption(max_correspondence_distance=1.5 * voxel,
+                                     edge_prune_threshold=0.25, reference_node=0))
+    return [np.asarray(node.pose) for node in graph.nodes]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=Path("../shared/data"))
+    parser.add_argument("--shuffle", action="store_true")
+    parser.add_argument("--foreign", action="store_true")
+    args = parser.parse_args()
+    folder = args.data / "stanford" / "bunny" / "data"
+    if not folder.is_dir():
+        sys.exit(f"multiway.py: {folder}: missing; skipping")
+    gt = read_gt_scans(folder / "gt_scan_to_world.txt")
+    names = list(SCANS)
+    if args.shuffle:
+        rest = names[1:]
+        np.random.default_rng(0).shuffle(rest)
+        names = [names[0]] + rest
+    scans = [sdfreg.read_point_cloud(folder / f"{n}.ply") for n in names]
+    if args.foreign:
+        chairs = sorted((args.data / "modelnet40-half1" / "chair").glob("*.ply"))
+        chair = sdfreg.read_point_cloud(chairs[0])
+        k = names.index("bun315")
+        names[k] = "chair (foreign)"
+        scans[k] = (chair - chair.mean(0)) * 0.15
+    truth = {n: np.linalg.inv(gt[names[0]]) @ gt[n] for n in names if n in gt}
+    runs = {}
+    start = time.perf_counter()
+    a = sdfreg.align(scans)
+    runs["sdfreg.align"] = (a.poses, time.perf_counter() - start)
+    print(f"sdfreg.align: {a}, stages {a.stage_times_s}, left out {a.left_out}")
+    try:
+        start = time.perf_counter()
+        poses = open3d_multiway(scans)
+        runs["Open3D multiway"] = (poses, time.perf_counter() - start)
+    except ImportError as e:
+        print(f"multiway.py: skipping Open3D: {e}", file=sys.stderr)
+    print("| scan | " + " | ".join(runs) + " |")
+    print("|---|" + "---|" * len(runs))
+    worst = {m: [0.0, 0.0] for m in runs}
+    for k, name in enumerate(names):
+        cells = []
+        for m, (poses, _) in runs.items():
+            if poses[k] is None:
+                cells.append("left out")
+                continue
+            if name not in truth:
+                cells.append("placed (foreign!)")
+                continue
+            rot, trans = pose_errors(poses[k], truth[name])
+            worst[m] = [max(worst[m][0], rot), max(worst[m][1], trans)]
+            cells.append(f"{rot:.3f}° / {trans * 1e3:.3f} mm")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+    print("| worst | " + " | ".join(f"{w[0]:.3f}° / {w[1] * 1e3:.3f} mm" for w in worst.values()) + " |")
+    print("| time | " + " | ".join(f"{t:.1f} s" for _, t in runs.values()) + " |")
+
+
+if __name__ == "__main__":
+    main()

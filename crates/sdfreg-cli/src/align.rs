@@ -1,0 +1,217 @@
+//! `sdfreg align`: many scans into one frame (`sdfreg_core::align`), written as poses.json, with
+//! the merged model and its mesh on request.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use nalgebra::{Isometry3, Matrix4};
+use sdfreg_core::geometry::se3::isometry_from_matrix;
+use sdfreg_core::io::write_mesh;
+use sdfreg_core::{AlignSettings, Alignment};
+
+use crate::args::AlignArgs;
+use crate::output::matrix_rows;
+
+/// Some scans were left out (exit code 3, as a batch with failed rows).
+#[derive(Debug, thiserror::Error)]
+#[error("{left} of {total} scans left out (see {output})")]
+pub struct SomeLeftOut {
+    pub left: usize,
+    pub total: usize,
+    pub output: String,
+}
+
+pub fn run(a: AlignArgs) -> Result<()> {
+    let inputs: Vec<&Path> = a.scans.iter().map(PathBuf::as_path).collect();
+    for out in [Some(&a.output), a.save_model.as_ref(), a.mesh.as_ref()]
+        .into_iter()
+        .flatten()
+    {
+        crate::refuse_overwrite(out, &inputs, a.force)?;
+    }
+    let mut settings = AlignSettings {
+        register: a.common.settings_from("scans")?,
+        anchor: a.anchor,
+        joint_rounds: a.joint_rounds,
+        threads: a.common.threads,
+        ..Default::default()
+    };
+    settings.register.threads = a.common.threads;
+    // A scan that cannot be read is left out by name, as one that fits nowhere.
+    let mut unreadable: Vec<(usize, String)> = Vec::new();
+    let mut index = Vec::new();
+    let mut scans = Vec::new();
+    for (k, path) in a.scans.iter().enumerate() {
+        match crate::read_cloud(path, &a.input, a.common.seed) {
+            Ok(points) => {
+                index.push(k);
+                scans.push(points);
+            }
+            Err(e) => {
+                eprintln!("sdfreg: {}: left out: {e:#}", path.display());
+                unreadable.push((k, format!("{e:#}")));
+            }
+        }
+    }
+    if !index.contains(&a.anchor) {
+        bail!(
+            "--anchor {}: scan {} ({}) is not among the readable scans",
+            a.anchor,
+            a.anchor,
+            a.scans
+                .get(a.anchor)
+                .map_or("none".into(), |p| p.display().to_string())
+        );
+    }
+    settings.anchor = index.iter().position(|&k| k == a.anchor).expect("checked");
+    let init = a
+        .init
+        .as_deref()
+        .map(|path| read_poses(path, a.scans.len()))
+        .transpose()?
+        .map(|poses| index.iter().map(|&k| poses[k]).collect::<Vec<_>>());
+    let alignment = sdfreg_core::align(&scans, init.as_deref(), &settings)
+        .map_err(|e| anyhow::anyhow!("{e}").context(format!("{} scans", a.scans.len())))?;
+    for (k, why) in &alignment.left_out {
+        eprintln!("sdfreg: {}: left out: {why}", a.scans[index[*k]].display());
+    }
+    let json = poses_json(&a.scans, &index, &unreadable, &alignment);
+    std::fs::write(&a.output, serde_json::to_string_pretty(&json)? + "\n")
+        .with_context(|| format!("{}", a.output.display()))?;
+    if a.save_model.is_some() || a.mesh.is_some() {
+        let model = alignment.merged_model(&scans, &settings.register)?;
+        if let Some(path) = &a.save_model {
+            model.save(path)?;
+        }
+        if let Some(path) = &a.mesh {
+            let (vertices, triangles) = model.mesh(a.mesh_resolution)?;
+            write_mesh(path, &vertices, &triangles)?;
+        }
+    }
+    let placed = alignment.poses.iter().filter(|p| p.is_some()).count();
+    let t = &alignment.times;
+    eprintln!(
+        "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, joint refinement {:.1} s); {} of {} pairs kept",
+        a.scans.len(),
+        a.scans[a.anchor].display(),
+        alignment.time.as_secs_f64(),
+        t.models.as_secs_f64(),
+        t.pairs.as_secs_f64(),
+        t.graph.as_secs_f64(),
+        t.joint.as_secs_f64(),
+        alignment.edges.iter().filter(|e| e.kept).count(),
+        alignment.edges.len(),
+    );
+    let left = a.scans.len() - placed;
+    if left > 0 {
+        return Err(SomeLeftOut {
+            left,
+            total: a.scans.len(),
+            output: a.output.display().to_string(),
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// poses.json: per scan `file` and `transformation` (scan into the anchor's frame; null when
+/// left out, with `left_out` saying why) and `fitness`; `edges`; the times.
+fn poses_json(
+    files: &[PathBuf],
+    index: &[usize],
+    unreadable: &[(usize, String)],
+    alignment: &Alignment,
+) -> serde_json::Value {
+    let name = |k: usize| files[index[k]].display().to_string();
+    let scans: Vec<serde_json::Value> = (0..files.len())
+        .map(|f| {
+            let file = files[f].display().to_string();
+            if let Some((_, why)) = unreadable.iter().find(|(k, _)| *k == f) {
+                return serde_json::json!({"file": file, "transformation": null, "left_out": why});
+            }
+            let k = index.iter().position(|&i| i == f).expect("readable");
+            let mut v = serde_json::json!({
+                "file": file,
+                "transformation": alignment.poses[k].map(|p| matrix_rows(&p.to_homogeneous())),
+                "fitness": alignment.fitness[k],
+            });
+            if let Some((_, why)) = alignment.left_out.iter().find(|(i, _)| *i == k) {
+                v["left_out"] = why.clone().into();
+            }
+            v
+        })
+        .collect();
+    let edges: Vec<serde_json::Value> = alignment
+        .edges
+        .iter()
+        .map(|e| {
+            let mut v = serde_json::json!({
+                "target": name(e.target),
+                "source": name(e.source),
+                "fitness": e.fitness(),
+                "kept": e.kept,
+            });
+            match &e.registration {
+                Ok(r) => v["transformation"] = matrix_rows(&r.matrix()).into(),
+                Err(why) => v["error"] = why.clone().into(),
+            }
+            v
+        })
+        .collect();
+    let t = &alignment.times;
+    serde_json::json!({
+        "convention": "transformation maps the scan's coordinates into the anchor scan's frame",
+        "anchor": name(alignment.anchor),
+        "scans": scans,
+        "edges": edges,
+        "time_ms": alignment.time.as_secs_f64() * 1e3,
+        "stage_ms": {
+            "models": t.models.as_secs_f64() * 1e3,
+            "pairs": t.pairs.as_secs_f64() * 1e3,
+            "graph": t.graph.as_secs_f64() * 1e3,
+            "joint": t.joint.as_secs_f64() * 1e3,
+        },
+    })
+}
+
+/// Initial poses from a poses.json (its `scans[].transformation`, in order; one per scan).
+fn read_poses(path: &Path, n: usize) -> Result<Vec<Isometry3<f64>>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not JSON (expected a poses.json)", path.display()))?;
+    let scans = v["scans"].as_array().with_context(|| {
+        format!(
+            "{}: no \"scans\" list (expected a poses.json)",
+            path.display()
+        )
+    })?;
+    if scans.len() != n {
+        bail!(
+            "{}: {} poses for {n} scans (one per scan, in order)",
+            path.display(),
+            scans.len()
+        );
+    }
+    scans
+        .iter()
+        .enumerate()
+        .map(|(k, s)| {
+            let rows: Vec<Vec<f64>> = serde_json::from_value(s["transformation"].clone())
+                .ok()
+                .filter(|r: &Vec<Vec<f64>>| r.len() == 4 && r.iter().all(|row| row.len() == 4))
+                .with_context(|| {
+                    format!(
+                        "{}: scans[{k}].transformation is not a 4×4 matrix",
+                        path.display()
+                    )
+                })?;
+            let m = Matrix4::from_fn(|r, c| rows[r][c]);
+            isometry_from_matrix(&m).with_context(|| {
+                format!(
+                    "{}: scans[{k}].transformation is not a rigid transform",
+                    path.display()
+                )
+            })
+        })
+        .collect()
+}

@@ -1,0 +1,194 @@
+//! `sdfreg.align`: many scans into one frame, and its result `sdfreg.Alignment`.
+
+use std::sync::Arc;
+
+use numpy::PyArray2;
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyList};
+
+use crate::convert;
+use crate::error;
+use crate::model::PySdfModel;
+use crate::registration::PyRegistration;
+use crate::settings::{Caller, SettingsArgs};
+
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Aligns many scans (views of one object or scene) into the frame of one of them.
+///
+/// Each scan gets a stored model; the pairs are registered through them (all pairs up to 16
+/// scans, else each scan with its next 3 in order, wrapping round); the registrations that fit
+/// (fitness ≥ 0.3), that a cycle through a third scan confirms and that agree with the spanning
+/// tree of the best ones form a pose graph, solved by robust Gauss–Newton on SE(3); then each
+/// scan is registered against one model of all the others
+/// (``joint_rounds`` times, none by default). No initial guesses are needed.
+///
+/// Args:
+///     scans: A sequence of (N, 3) point arrays, each in its own frame, the same units.
+///     init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
+///         angles, odometry), or None.
+///     anchor: The scan whose frame the poses map into.
+///     joint_rounds: Joint refinement rounds (each scan against one model of the others);
+///         0 skips.
+///     seed: Seed of every random choice.
+///     threads: Worker threads; 0 = one per core.
+///     preset: The pairs' preset, ``"scans"`` by default (the robust kernel from the start).
+///
+/// The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
+///
+/// Returns:
+///     The :class:`Alignment`.
+///
+/// Raises:
+///     ValueError: fewer than two scans can be used, a scan is not an (N, 3) float array, the
+///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
+///         of range.
+#[pyfunction]
+#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, **settings))]
+pub fn align<'py>(
+    py: Python<'py>,
+    scans: &Bound<'py, PyAny>,
+    init: Option<&Bound<'py, PyAny>>,
+    anchor: i64,
+    joint_rounds: i64,
+    settings: Option<&Bound<'py, PyDict>>,
+) -> PyResult<PyAlignment> {
+    let scans: Vec<Vec<nalgebra::Point3<f64>>> = scans
+        .try_iter()
+        .map_err(|_| error::argument("scans", "expected a sequence of (N, 3) arrays"))?
+        .enumerate()
+        .map(|(k, s)| convert::points(&s?, &format!("scans[{k}]")))
+        .collect::<PyResult<_>>()?;
+    let init = init
+        .map(|poses| -> PyResult<Vec<nalgebra::Isometry3<f64>>> {
+            poses
+                .try_iter()
+                .map_err(|_| error::argument("init", "expected a sequence of 4×4 arrays"))?
+                .enumerate()
+                .map(|(k, m)| convert::isometry(&m?, &format!("init[{k}]")))
+                .collect()
+        })
+        .transpose()?;
+    let register = SettingsArgs::from_kwargs(Caller::Align, settings)?.build("scans")?;
+    let s = sdfreg_core::AlignSettings {
+        threads: register.threads,
+        register,
+        anchor: usize::try_from(anchor)
+            .map_err(|_| error::argument("anchor", format!("must be ≥ 0, got {anchor}")))?,
+        joint_rounds: usize::try_from(joint_rounds).map_err(|_| {
+            error::argument("joint_rounds", format!("must be ≥ 0, got {joint_rounds}"))
+        })?,
+        ..Default::default()
+    };
+    let (alignment, model) = py
+        .detach(|| {
+            let a = sdfreg_core::align(&scans, init.as_deref(), &s)?;
+            let model = a.merged_model(&scans, &s.register)?;
+            Ok::<_, sdfreg_core::Error>((a, model))
+        })
+        .map_err(error::registration)?;
+    Ok(PyAlignment {
+        alignment,
+        model: Arc::new(model),
+    })
+}
+
+/// The outcome of :func:`align`. Read-only.
+#[pyclass(frozen, module = "sdfreg", name = "Alignment")]
+pub struct PyAlignment {
+    alignment: sdfreg_core::Alignment,
+    model: Arc<sdfreg_core::SdfModel>,
+}
+
+#[pymethods]
+impl PyAlignment {
+    /// Per scan, the 4×4 mapping its coordinates into the anchor's frame; None for a scan left
+    /// out.
+    #[getter]
+    fn poses<'py>(&self, py: Python<'py>) -> Vec<Option<Bound<'py, PyArray2<f64>>>> {
+        self.alignment
+            .poses
+            .iter()
+            .map(|p| p.map(|t| convert::matrix4(py, &t.to_homogeneous())))
+            .collect()
+    }
+
+    /// The scans left out, as ``(index, why)``.
+    #[getter]
+    fn left_out(&self) -> Vec<(usize, String)> {
+        self.alignment.left_out.clone()
+    }
+
+    /// The index of the anchor scan.
+    #[getter]
+    fn anchor(&self) -> usize {
+        self.alignment.anchor
+    }
+
+    /// Per scan, the best fitness of a kept pairwise registration it is part of.
+    #[getter]
+    fn fitness(&self) -> Vec<f64> {
+        self.alignment.fitness.clone()
+    }
+
+    /// Every pairwise registration, as dicts: ``target``, ``source`` (scan indices; the
+    /// source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph), and
+    /// ``registration`` (a :class:`Registration`) or ``error``.
+    #[getter]
+    fn edges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for e in &self.alignment.edges {
+            let d = PyDict::new(py);
+            d.set_item("target", e.target)?;
+            d.set_item("source", e.source)?;
+            d.set_item("fitness", e.fitness())?;
+            d.set_item("kept", e.kept)?;
+            match &e.registration {
+                Ok(r) => d.set_item("registration", PyRegistration(r.clone()))?,
+                Err(why) => d.set_item("error", why)?,
+            }
+            list.append(d)?;
+        }
+        Ok(list)
+    }
+
+    /// One model of all the placed scans in the anchor's frame (mesh it with
+    /// ``model.mesh()``, save it with ``model.save(path)``).
+    #[getter]
+    fn model(&self) -> PySdfModel {
+        PySdfModel(self.model.clone())
+    }
+
+    /// Wall time, seconds.
+    #[getter]
+    fn time_s(&self) -> f64 {
+        self.alignment.time.as_secs_f64()
+    }
+
+    /// Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``joint``.
+    #[getter]
+    fn stage_times_s<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = &self.alignment.times;
+        let d = PyDict::new(py);
+        for (name, v) in [
+            ("models", t.models),
+            ("pairs", t.pairs),
+            ("graph", t.graph),
+            ("joint", t.joint),
+        ] {
+            d.set_item(name, v.as_secs_f64())?;
+        }
+        Ok(d)
+    }
+
+    fn __repr__(&self) -> String {
+        let placed = self.alignment.poses.iter().filter(|p| p.is_some()).count();
+        format!(
+            "Alignment({placed} of {} scans placed, anchor {}, {} of {} pairs kept, time_s={:.2})",
+            self.alignment.poses.len(),
+            self.alignment.anchor,
+            self.alignment.edges.iter().filter(|e| e.kept).count(),
+            self.alignment.edges.len(),
+            self.alignment.time.as_secs_f64()
+        )
+    }
+}

@@ -1,0 +1,75 @@
+"""``sdfreg.align``: partial views of one shape into one frame, a foreign view left out, bad
+input refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import sdfreg
+from conftest import QUICK, blob, euler_xyz, pose_errors
+
+
+def views(n: int, seed: int):
+    """``n`` partial views (85 % of a blob, cut by planes of different directions), each moved
+    into a frame of its own; and each view's true pose in the first view's frame."""
+    rng = np.random.default_rng(seed)
+    shape = blob(6000, rng)
+    scans, poses = [], []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        d = np.array([np.cos(a), np.sin(a), 0.3])
+        keep = shape @ d > np.quantile(shape @ d, 0.15)
+        part = shape[keep][rng.permutation(int(keep.sum()))[:2000]]
+        pose = np.eye(4)
+        pose[:3, :3] = euler_xyz(rng.uniform(-30, 30, 3))
+        pose[:3, 3] = rng.uniform(-0.5, 0.5, 3)
+        # The scan in its own frame: p_scan = pose⁻¹ p_world.
+        inv = np.linalg.inv(pose)
+        scans.append(part @ inv[:3, :3].T + inv[:3, 3])
+        poses.append(pose)
+    first = np.linalg.inv(poses[0])
+    return scans, [first @ p for p in poses]
+
+
+def test_partial_views_align_and_a_foreign_view_is_left_out() -> None:
+    scans, truth = views(4, 1)
+    rng = np.random.default_rng(9)
+    box = rng.uniform(-0.4, 0.4, (1500, 3))
+    box[np.arange(1500), rng.integers(0, 3, 1500)] = rng.choice([-0.4, 0.4], 1500)
+    scans.insert(2, box)
+    truth.insert(2, None)
+    a = sdfreg.align(scans, **QUICK)
+    assert isinstance(a, sdfreg.Alignment)
+    assert [k for k, _ in a.left_out] == [2]
+    assert a.poses[2] is None
+    for k, (pose, t) in enumerate(zip(a.poses, truth)):
+        if t is None:
+            continue
+        rot, trans = pose_errors(pose, t)
+        assert rot < 1.0 and trans < 0.01, (k, rot, trans)
+    kept = [e for e in a.edges if e["kept"]]
+    assert kept and all(isinstance(e["registration"], sdfreg.Registration) for e in kept)
+    assert all(2 not in (e["source"], e["target"]) for e in kept)
+    assert set(a.stage_times_s) == {"models", "pairs", "graph", "joint"}
+    # One model of them all: every placed view lies on it.
+    moved = scans[1] @ a.poses[1][:3, :3].T + a.poses[1][:3, 3]
+    assert np.median(np.abs(a.model.distance(moved))) < 0.01
+
+
+def test_the_anchor_and_bad_input() -> None:
+    scans, truth = views(3, 2)
+    a = sdfreg.align(scans, anchor=1, **QUICK)
+    assert a.anchor == 1
+    rot, trans = pose_errors(a.poses[0], np.linalg.inv(truth[1]) @ truth[0])
+    assert rot < 1.0 and trans < 0.01
+    with pytest.raises(ValueError, match="at least two scans"):
+        sdfreg.align(scans[:1])
+    with pytest.raises(ValueError, match="align.anchor"):
+        sdfreg.align(scans, anchor=5)
+    with pytest.raises(ValueError, match=r"scans\[1\]"):
+        sdfreg.align([scans[0], np.zeros((5, 2))])
+    with pytest.raises(ValueError, match="align.init"):
+        sdfreg.align(scans, init=[np.eye(4)])
+    with pytest.raises(TypeError, match="scale"):
+        sdfreg.align(scans, scale=True)

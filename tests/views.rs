@@ -1,0 +1,102 @@
+//! Many views: procedural room scans from a loop of sensor poses aligned into one frame
+//! (`sdfreg_core::align`), a scan of something else left out, bad input refused.
+
+use nalgebra::{Isometry3, Point3};
+use sdfreg_core::geometry::se3::pose_errors;
+use sdfreg_core::sim::lidar::{room_loop, Sensor};
+use sdfreg_core::{align, AlignSettings, Error};
+
+/// The 64-beam sensor at 0.6° steps (a third of its returns), so the test stays short.
+fn sensor() -> Sensor {
+    Sensor {
+        azimuth_step_deg: 0.6,
+        ..Sensor::spinning_64()
+    }
+}
+
+#[test]
+fn a_loop_of_room_scans_aligns_from_no_guesses_and_a_foreign_scan_is_left_out() {
+    let (mut scans, truth) = room_loop(5, &sensor());
+    // The third scan replaced by a scan of something else: a blob 2 m across.
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+    scans[2] = sdfreg_core::sim::shapes::blob(4000, &mut rng)
+        .iter()
+        .map(|p| Point3::from(p.coords * 2.0))
+        .collect();
+    let a = align(&scans, None, &AlignSettings::default()).unwrap();
+    assert_eq!(a.anchor, 0);
+    for (k, (pose, t)) in a.poses.iter().zip(&truth).enumerate() {
+        if k == 2 {
+            assert!(pose.is_none(), "the foreign scan was placed: {pose:?}");
+            continue;
+        }
+        // The sparse scans register pairwise to 0.03–0.13° / 0.3–14 mm.
+        let (rot, trans) = pose_errors(&pose.expect("placed"), t);
+        assert!(rot < 0.3 && trans < 0.015, "view {k}: {rot}° {trans} m");
+    }
+    assert_eq!(a.left_out.len(), 1);
+    assert_eq!(a.left_out[0].0, 2);
+    assert!(a.edges.iter().any(|e| e.kept) && a.edges.iter().any(|e| !e.kept));
+    assert!(a
+        .edges
+        .iter()
+        .all(|e| !e.kept || (e.source != 2 && e.target != 2)));
+    // One model of them all, in the anchor's frame: the other scans lie on its surface.
+    let model = a
+        .merged_model(&scans, &AlignSettings::default().register)
+        .unwrap();
+    let moved: Vec<Point3<f64>> = scans[3]
+        .iter()
+        .step_by(50)
+        .map(|p| a.poses[3].unwrap() * p)
+        .collect();
+    let mut d: Vec<f64> = model.distance(&moved).iter().map(|v| v.abs()).collect();
+    d.sort_by(f64::total_cmp);
+    assert!(d[d.len() / 2] < 0.05, "median |Φ| {} m", d[d.len() / 2]);
+}
+
+#[test]
+fn the_anchor_and_the_initial_poses_are_honoured() {
+    let (scans, truth) = room_loop(3, &sensor());
+    let s = AlignSettings {
+        anchor: 1,
+        ..Default::default()
+    };
+    // Initial poses 5 cm and 1° off the truth.
+    let nudge = Isometry3::new(
+        nalgebra::Vector3::new(0.05, 0.0, 0.0),
+        nalgebra::Vector3::new(0.0, 0.0, 1f64.to_radians()),
+    );
+    let init: Vec<Isometry3<f64>> = truth.iter().map(|t| nudge * t).collect();
+    let a = align(&scans, Some(&init), &s).unwrap();
+    for (k, pose) in a.poses.iter().enumerate() {
+        // Poses map into scan 1's frame.
+        let expected = truth[1].inverse() * truth[k];
+        let (rot, trans) = pose_errors(&pose.unwrap(), &expected);
+        assert!(rot < 0.3 && trans < 0.015, "view {k}: {rot}° {trans} m");
+    }
+}
+
+#[test]
+fn too_few_scans_a_bad_anchor_and_bad_initial_poses_are_refused() {
+    let (scans, _) = room_loop(2, &sensor());
+    let one = align(&scans[..1], None, &AlignSettings::default()).unwrap_err();
+    assert!(matches!(one, Error::TooFewScans { found: 1 }), "{one}");
+    let tiny = vec![scans[0].clone(), scans[1][..5].to_vec()];
+    let e = align(&tiny, None, &AlignSettings::default()).unwrap_err();
+    assert!(matches!(e, Error::TooFewScans { found: 1 }), "{e}");
+    let s = AlignSettings {
+        anchor: 2,
+        ..Default::default()
+    };
+    let e = align(&scans, None, &s).unwrap_err().to_string();
+    assert!(e.contains("align.anchor"), "{e}");
+    let e = align(
+        &scans,
+        Some(&[Isometry3::identity()]),
+        &AlignSettings::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("align.init"), "{e}");
+}
