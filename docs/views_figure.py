@@ -52,7 +52,7 @@ def main() -> None:
     mesh.plot_trisurf(vertices[:, 0], vertices[:, 2], vertices[:, 1], triangles=faces,
                       color="lightsteelblue", shade=True, linewidth=0, antialiased=True)
     titles = [f"{len(scans)} scans, each in its own frame",
-              f"sdfreg.align: one frame, {a.time_s:.0f} s, no guesses",
+              "sdfreg.align: one frame, from no guesses",
               f"one model of them all: {len(faces)} triangles"]
     for ax, title in zip((raw, placed, mesh), titles):
         ax.text2D(0.5, 0.0, title, transform=ax.transAxes, ha="center", fontsize=12)
