@@ -29,6 +29,11 @@ pub fn run(a: AlignArgs) -> Result<()> {
     {
         crate::refuse_overwrite(out, &inputs, a.force)?;
     }
+    if a.common.scale {
+        bail!(
+            "--scale: align registers rigidly (the views of one scan campaign share their units)"
+        );
+    }
     let mut settings = AlignSettings {
         register: a.common.settings_from("scans")?,
         anchor: a.anchor,

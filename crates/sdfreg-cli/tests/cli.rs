@@ -1125,6 +1125,16 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         .arg("align")
         .arg(dir.path().join("view_0.ply"))
         .arg(dir.path().join("view_1.ply"))
+        .args(["--scale", "-o"])
+        .arg(dir.path().join("other.json"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--scale: align registers rigidly"));
+    let out = sdfreg()
+        .arg("align")
+        .arg(dir.path().join("view_0.ply"))
+        .arg(dir.path().join("view_1.ply"))
         .arg("-o")
         .arg(&poses)
         .output()
