@@ -115,14 +115,7 @@ impl Degeneracy {
         if n == 0 {
             return Self::default();
         }
-        let c = x[..n].iter().map(|p| p.coords).sum::<Vector3<f64>>() / n as f64;
-        let rho = (x[..n]
-            .iter()
-            .map(|p| (p.coords - c).norm_squared())
-            .sum::<f64>()
-            / n as f64)
-            .sqrt()
-            .max(f64::MIN_POSITIVE);
+        let (c, rho) = centre_and_radius(&x[..n]);
         let mut m = Matrix6::zeros();
         for (p, g) in x[..n].iter().zip(&grad[..n]) {
             let j = jacobian_row(&((p.coords - c) / rho), g);
@@ -160,14 +153,7 @@ impl Degeneracy {
         if n == 0 {
             return;
         }
-        let c = x[..n].iter().map(|p| p.coords).sum::<Vector3<f64>>() / n as f64;
-        let rho = (x[..n]
-            .iter()
-            .map(|p| (p.coords - c).norm_squared())
-            .sum::<f64>()
-            / n as f64)
-            .sqrt()
-            .max(f64::MIN_POSITIVE);
+        let (c, rho) = centre_and_radius(&x[..n]);
         let (mut m, mut b, mut d) = (Matrix6::zeros(), Vector6::zeros(), 0.0);
         for (p, g) in x[..n].iter().zip(&grad[..n]) {
             let y = (p.coords - c) / rho;
@@ -204,6 +190,17 @@ impl Degeneracy {
         self.scale_relative_eigenvalue
             .is_some_and(|v| v < self.ratio)
     }
+}
+
+/// The centroid `c` of `x` and its RMS radius `ρ` about it (at least the smallest positive
+/// number): the frame the normalised matrix is taken in (see the module docs).
+fn centre_and_radius(x: &[Point3<f64>]) -> (Vector3<f64>, f64) {
+    let n = x.len() as f64;
+    let c = x.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let rho = (x.iter().map(|p| (p.coords - c).norm_squared()).sum::<f64>() / n)
+        .sqrt()
+        .max(f64::MIN_POSITIVE);
+    (c, rho)
 }
 
 /// Names the unit twist `e = [ρω; v]` (about the centroid `c`).

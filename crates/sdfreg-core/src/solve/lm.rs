@@ -483,16 +483,20 @@ mod tests {
     use crate::field::mlp::{Mlp, MlpSettings};
     use rand::SeedableRng;
 
-    #[test]
-    fn jacobian_matches_finite_differences_of_the_residual() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
-        let mlp = Mlp::new(
+    /// A random MLP (seed `seed`) with a smooth activation (β = 10), for the finite differences.
+    fn smooth_mlp(seed: u64) -> Mlp {
+        Mlp::new(
             &MlpSettings {
                 beta: 10.0,
                 ..Default::default()
             },
-            &mut rng,
-        );
+            &mut rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+        )
+    }
+
+    #[test]
+    fn jacobian_matches_finite_differences_of_the_residual() {
+        let mlp = smooth_mlp(2);
         let p = [Point3::new(0.3, -0.2, 0.1)];
         let pose = exp_se3(&Vector6::new(0.2, -0.1, 0.3, 0.05, 0.1, -0.02));
         let lin = linearize(&mlp, &p, &pose, Kernel::L2);
@@ -631,14 +635,7 @@ mod tests {
 
     #[test]
     fn similarity_jacobian_matches_finite_differences_of_the_residual() {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
-        let mlp = Mlp::new(
-            &MlpSettings {
-                beta: 10.0,
-                ..Default::default()
-            },
-            &mut rng,
-        );
+        let mlp = smooth_mlp(3);
         let p = [Point3::new(0.3, -0.2, 0.1)];
         let pose = exp_se3(&Vector6::new(0.2, -0.1, 0.3, 0.05, 0.1, -0.02));
         let dof = ScaleDof {
