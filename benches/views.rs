@@ -7,10 +7,19 @@
 //!     cargo bench --bench views -- --views 100  # peak memory: run under /usr/bin/time -v
 //!     cargo bench --bench views -- --write DIR  # also DIR/scan_NNN.ply and DIR/truth.json
 //!     cargo bench --bench views -- --joint 0    # without the joint refinement
+//!     cargo bench --bench views -- --consensus 30  # with the multi-view refinement
+//!     cargo bench --bench views -- --reference-consensus ../shared/data
+//!
+//! `--reference-consensus DATA` instead starts the multi-view refinement
+//! (`sdfreg_core::views::consensus`) from the Stanford bunny's reference poses
+//! (`DATA/stanford/bunny/data/gt_scan_to_world.txt`) and prints how far the poses its scans'
+//! points agree on lie from them: what the reference is worth at this precision.
 
-use sdfreg_core::geometry::se3::pose_errors;
+use nalgebra::{Isometry3, Matrix4};
+use sdfreg_core::geometry::se3::{isometry_from_matrix, pose_errors};
 use sdfreg_core::sim::lidar::{room_loop, Sensor};
-use sdfreg_core::{align, AlignSettings};
+use sdfreg_core::views::consensus::consensus;
+use sdfreg_core::{align, AlignSettings, ConsensusSettings};
 
 /// The value after `flag` on the command line (cargo bench passes `--bench` too).
 fn arg(flag: &str) -> Option<String> {
@@ -20,6 +29,9 @@ fn arg(flag: &str) -> Option<String> {
 }
 
 fn main() {
+    if let Some(data) = arg("--reference-consensus") {
+        return reference_consensus(std::path::Path::new(&data));
+    }
     let views: usize = arg("--views").map_or(8, |v| v.parse().expect("--views N"));
     let sensor = if views > 16 {
         Sensor::spinning_32()
@@ -58,6 +70,10 @@ fn main() {
         joint_rounds: arg("--joint").map_or(AlignSettings::default().joint_rounds, |v| {
             v.parse().expect("--joint N")
         }),
+        consensus: ConsensusSettings {
+            iterations: arg("--consensus").map_or(0, |v| v.parse().expect("--consensus N")),
+            ..Default::default()
+        },
         ..Default::default()
     };
     let a = align(&scans, None, &settings).expect("aligned");
@@ -93,13 +109,74 @@ fn main() {
     );
     let t = a.times;
     println!(
-        "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, joint {:.1} s; {} of {} pairs kept",
+        "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",
         a.time.as_secs_f64(),
         t.models.as_secs_f64(),
         t.pairs.as_secs_f64(),
         t.graph.as_secs_f64(),
+        t.consensus.as_secs_f64(),
         t.joint.as_secs_f64(),
         a.edges.iter().filter(|e| e.kept).count(),
         a.edges.len()
+    );
+}
+
+/// The bunny's 10 scans at their reference poses (relative to bun000), refined by the multi-view
+/// refinement: each pose's move, and the mean residual before and after.
+fn reference_consensus(data: &std::path::Path) {
+    let dir = data.join("stanford/bunny/data");
+    let Ok(text) = std::fs::read_to_string(dir.join("gt_scan_to_world.txt")) else {
+        println!("skipped: no {}", dir.join("gt_scan_to_world.txt").display());
+        return;
+    };
+    let lines: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .collect();
+    let mut names = Vec::new();
+    let mut reference: Vec<Isometry3<f64>> = Vec::new();
+    for block in lines.chunks(5) {
+        let values: Vec<f64> = block[1..]
+            .iter()
+            .flat_map(|l| {
+                l.split_whitespace()
+                    .map(|v| v.parse::<f64>().expect("a number"))
+            })
+            .collect();
+        names.push(block[0].trim().to_string());
+        reference.push(isometry_from_matrix(&Matrix4::from_row_slice(&values)).expect("rigid"));
+    }
+    let scans: Vec<_> = names
+        .iter()
+        .map(|n| sdfreg_core::io::read_point_cloud(dir.join(n)).expect("a bunny scan"))
+        .collect();
+    let start: Vec<Isometry3<f64>> = reference
+        .iter()
+        .map(|t| reference[0].inverse() * t)
+        .collect();
+    let mut poses: Vec<Option<Isometry3<f64>>> = start.iter().copied().map(Some).collect();
+    let settings = ConsensusSettings {
+        iterations: 30,
+        ..Default::default()
+    };
+    let out = consensus(&scans, &mut poses, 0, &settings);
+    println!(
+        "the bunny's {} scans from their reference poses: {} pairs, {} iterations, mean residual {:.4} mm -> {:.4} mm",
+        scans.len(),
+        out.pairs,
+        out.iterations,
+        out.before * 1e3,
+        out.after * 1e3
+    );
+    let mut worst = (0.0f64, 0.0f64);
+    for ((name, pose), s) in names.iter().zip(&poses).zip(&start) {
+        let (r, t) = pose_errors(&pose.expect("placed"), s);
+        worst = (worst.0.max(r), worst.1.max(t));
+        println!("  {name:12} moved {r:.3}° / {:.3} mm", t * 1e3);
+    }
+    println!(
+        "worst move {:.3}° / {:.3} mm from the reference",
+        worst.0,
+        worst.1 * 1e3
     );
 }

@@ -35,9 +35,13 @@ pub fn run(a: AlignArgs) -> Result<()> {
         );
     }
     let mut settings = AlignSettings {
-        register: a.common.settings_from("scans")?,
+        register: a.common.settings_from("views")?,
         anchor: a.anchor,
         joint_rounds: a.joint_rounds,
+        consensus: sdfreg_core::ConsensusSettings {
+            iterations: a.consensus_iterations,
+            ..Default::default()
+        },
         threads: a.common.threads,
         ..Default::default()
     };
@@ -96,13 +100,14 @@ pub fn run(a: AlignArgs) -> Result<()> {
     let placed = alignment.poses.iter().filter(|p| p.is_some()).count();
     let t = &alignment.times;
     eprintln!(
-        "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, joint refinement {:.1} s); {} of {} pairs kept",
+        "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, consensus {:.1} s, joint refinement {:.1} s); {} of {} pairs kept",
         a.scans.len(),
         a.scans[a.anchor].display(),
         alignment.time.as_secs_f64(),
         t.models.as_secs_f64(),
         t.pairs.as_secs_f64(),
         t.graph.as_secs_f64(),
+        t.consensus.as_secs_f64(),
         t.joint.as_secs_f64(),
         alignment.edges.iter().filter(|e| e.kept).count(),
         alignment.edges.len(),
@@ -120,7 +125,8 @@ pub fn run(a: AlignArgs) -> Result<()> {
 }
 
 /// poses.json: per scan `file` and `transformation` (scan into the anchor's frame; null when
-/// left out, with `left_out` saying why) and `fitness`; `edges`; the times.
+/// left out, with `left_out` saying why) and `fitness`; `edges`; the times; what the consensus
+/// stage did (zeros when it did not run).
 fn poses_json(
     files: &[PathBuf],
     index: &[usize],
@@ -164,6 +170,7 @@ fn poses_json(
         })
         .collect();
     let t = &alignment.times;
+    let c = &alignment.consensus;
     serde_json::json!({
         "convention": "transformation maps the scan's coordinates into the anchor scan's frame",
         "anchor": name(alignment.anchor),
@@ -174,7 +181,15 @@ fn poses_json(
             "models": t.models.as_secs_f64() * 1e3,
             "pairs": t.pairs.as_secs_f64() * 1e3,
             "graph": t.graph.as_secs_f64() * 1e3,
+            "consensus": t.consensus.as_secs_f64() * 1e3,
             "joint": t.joint.as_secs_f64() * 1e3,
+        },
+        "consensus": {
+            "pairs": c.pairs,
+            "iterations": c.iterations,
+            "mean_residual_before": c.before,
+            "mean_residual_after": c.after,
+            "undone": c.undone,
         },
     })
 }

@@ -53,9 +53,9 @@ pub enum RobustFlag {
 #[derive(Args, Debug, Clone)]
 pub struct Common {
     /// Start from a named preset: `default`, `scans` for scans known to overlap only in part
-    /// (robust kernel from the start, multi-start tie 0.05), or `tracking` (warm-started frames:
-    /// no multi-start, a few LM steps, a short polish; `track`'s default). Other flags override
-    /// it.
+    /// (robust kernel from the start, multi-start tie 0.05), `views` (`scans` with an object's
+    /// polish pass ending when its steps stop shrinking; `align`'s default), or `tracking` (warm-started frames: no multi-start,
+    /// a few LM steps, a short polish; `track`'s default). Other flags override it.
     #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(RegisterSettings::PRESETS))]
     pub preset: Option<String>,
     /// Seed of every random choice (equal seeds give identical results).
@@ -397,6 +397,12 @@ pub struct AlignArgs {
     /// did not help on the measured sets; see the guide's Many views page).
     #[arg(long, default_value_t = 0)]
     pub joint_rounds: usize,
+    /// Iterations of the multi-view point-to-plane refinement after the pose graph (every pose
+    /// at once, against the other scans' points where they overlap); 0 skips it. The poses the
+    /// scans' own points agree on; off by default, as it did not bring the measured sets nearer
+    /// their references (see the guide's Many views page). 30 is plenty.
+    #[arg(long, default_value_t = 0)]
+    pub consensus_iterations: usize,
     /// Overwrite --output, --save-model and --mesh if they exist.
     #[arg(long)]
     pub force: bool,

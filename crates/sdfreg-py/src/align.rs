@@ -29,9 +29,13 @@ use crate::settings::{Caller, SettingsArgs};
 ///     anchor: The scan whose frame the poses map into.
 ///     joint_rounds: Joint refinement rounds (each scan against one model of the others);
 ///         0 skips.
+///     consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
+///         pose graph (every pose at once, against the other scans' points); 0 (the default)
+///         skips it.
 ///     seed: Seed of every random choice.
 ///     threads: Worker threads; 0 = one per core.
-///     preset: The pairs' preset, ``"scans"`` by default (the robust kernel from the start).
+///     preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
+///         the start, with an object's polish pass ending when its steps stop shrinking).
 ///
 /// The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 ///
@@ -43,13 +47,14 @@ use crate::settings::{Caller, SettingsArgs};
 ///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
 ///         of range.
 #[pyfunction]
-#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, **settings))]
+#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, **settings))]
 pub fn align<'py>(
     py: Python<'py>,
     scans: &Bound<'py, PyAny>,
     init: Option<&Bound<'py, PyAny>>,
     anchor: i64,
     joint_rounds: i64,
+    consensus_iterations: i64,
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<PyAlignment> {
     let scans: Vec<Vec<nalgebra::Point3<f64>>> = scans
@@ -68,7 +73,7 @@ pub fn align<'py>(
                 .collect()
         })
         .transpose()?;
-    let register = SettingsArgs::from_kwargs(Caller::Align, settings)?.build("scans")?;
+    let register = SettingsArgs::from_kwargs(Caller::Align, settings)?.build("views")?;
     let s = sdfreg_core::AlignSettings {
         threads: register.threads,
         register,
@@ -77,6 +82,15 @@ pub fn align<'py>(
         joint_rounds: usize::try_from(joint_rounds).map_err(|_| {
             error::argument("joint_rounds", format!("must be ≥ 0, got {joint_rounds}"))
         })?,
+        consensus: sdfreg_core::ConsensusSettings {
+            iterations: usize::try_from(consensus_iterations).map_err(|_| {
+                error::argument(
+                    "consensus_iterations",
+                    format!("must be ≥ 0, got {consensus_iterations}"),
+                )
+            })?,
+            ..Default::default()
+        },
         ..Default::default()
     };
     let (alignment, model) = py
@@ -164,7 +178,24 @@ impl PyAlignment {
         self.alignment.time.as_secs_f64()
     }
 
-    /// Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``joint``.
+    /// What the multi-view refinement (``consensus_iterations``) did: ``pairs`` (ordered pairs
+    /// of scans measured), ``iterations``, ``mean_residual_before`` and ``mean_residual_after``
+    /// (mean distance of the measured points to the other scans' planes, scan units),
+    /// ``undone`` (the graph's poses kept: the residual did not fall). Zeros when it did not run.
+    #[getter]
+    fn consensus<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let c = &self.alignment.consensus;
+        let d = PyDict::new(py);
+        d.set_item("pairs", c.pairs)?;
+        d.set_item("iterations", c.iterations)?;
+        d.set_item("mean_residual_before", c.before)?;
+        d.set_item("mean_residual_after", c.after)?;
+        d.set_item("undone", c.undone)?;
+        Ok(d)
+    }
+
+    /// Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``consensus``,
+    /// ``joint``.
     #[getter]
     fn stage_times_s<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = &self.alignment.times;
@@ -173,6 +204,7 @@ impl PyAlignment {
             ("models", t.models),
             ("pairs", t.pairs),
             ("graph", t.graph),
+            ("consensus", t.consensus),
             ("joint", t.joint),
         ] {
             d.set_item(name, v.as_secs_f64())?;

@@ -56,9 +56,10 @@ use settings::{
 ///         source among its queries, as registering against the cloud does (slower; the same
 ///         numbers as the cloud). None: False for a model (Φ frozen); a cloud is always
 ///         refined.
-///     preset: ``"default"``, or ``"scans"`` for scans known to overlap only in part (the
-///         robust kernel from the start, multi-start tie 0.05). The arguments below override
-///         it; None keeps the preset's value.
+///     preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
+///         robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
+///         object's polish pass ending when its steps stop shrinking). The arguments below override it; None keeps the
+///         preset's value.
 ///     robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
 ///         ``"on"``, ``"off"``, or a :class:`RobustSettings`.
 ///     seed: Seed of every random choice; equal seeds give identical results.

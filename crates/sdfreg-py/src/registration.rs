@@ -55,7 +55,7 @@ impl PyRegistration {
         self.0.converged
     }
 
-    /// Why that stage stopped: "small_step", "no_decrease" or "max_iterations".
+    /// Why that stage stopped: "small_step", "no_decrease", "max_iterations" or (the polish) "stalled".
     #[getter]
     fn stop_reason(&self) -> &'static str {
         self.0.stop_reason.name()

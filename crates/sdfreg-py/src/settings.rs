@@ -393,6 +393,8 @@ settings_class! {
     ///     tolerance: A pass has converged when its step is below this.
     ///     snap: Try snapping onto the nearest target points (kept when the source lies on them).
     ///     target_planes: An object's planes at the target's points (kept by a model), not at the source's.
+    ///     patience: An object's pass also ends when its step has not fallen below its smallest
+    ///         for this many iterations; 0 never (the ``"views"`` preset: 10).
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -405,6 +407,7 @@ settings_class! {
         tolerance: f64 = 1e-7,
         snap: bool = true,
         target_planes: bool = false,
+        patience: i64 = 0,
     }
 }
 

@@ -51,7 +51,8 @@ def test_partial_views_align_and_a_foreign_view_is_left_out() -> None:
     kept = [e for e in a.edges if e["kept"]]
     assert kept and all(isinstance(e["registration"], sdfreg.Registration) for e in kept)
     assert all(2 not in (e["source"], e["target"]) for e in kept)
-    assert set(a.stage_times_s) == {"models", "pairs", "graph", "joint"}
+    assert set(a.stage_times_s) == {"models", "pairs", "graph", "consensus", "joint"}
+    assert a.consensus["iterations"] == 0 and a.stage_times_s["consensus"] < 0.01
     # One model of them all: every placed view lies on it.
     moved = scans[1] @ a.poses[1][:3, :3].T + a.poses[1][:3, 3]
     assert np.median(np.abs(a.model.distance(moved))) < 0.01
@@ -63,6 +64,15 @@ def test_the_anchor_and_bad_input() -> None:
     assert a.anchor == 1
     rot, trans = pose_errors(a.poses[0], np.linalg.inv(truth[1]) @ truth[0])
     assert rot < 1.0 and trans < 0.01
+    # The multi-view refinement keeps the poses within the same bounds and lowers the residual.
+    c = sdfreg.align(scans, anchor=1, consensus_iterations=30, **QUICK)
+    assert c.consensus["pairs"] >= 4 and 1 <= c.consensus["iterations"] <= 30
+    assert c.consensus["mean_residual_after"] <= c.consensus["mean_residual_before"]
+    for k in (0, 2):
+        rot, trans = pose_errors(c.poses[k], np.linalg.inv(truth[1]) @ truth[k])
+        assert rot < 1.0 and trans < 0.01, (k, rot, trans)
+    with pytest.raises(ValueError, match="consensus_iterations"):
+        sdfreg.align(scans, consensus_iterations=-1)
     with pytest.raises(ValueError, match="at least two scans"):
         sdfreg.align(scans[:1])
     with pytest.raises(ValueError, match="align.anchor"):

@@ -87,15 +87,20 @@ pub enum StopReason {
     NoDecrease,
     /// The iteration cap ran out before convergence.
     MaxIterations,
+    /// The polish's steps stopped shrinking: none fell below the smallest so far for
+    /// [`crate::PolishSettings::patience`] iterations (its planes and weights change with every
+    /// step, and the steps wander instead of converging).
+    Stalled,
 }
 
 impl StopReason {
-    /// Snake-case name: `small_step`, `no_decrease` or `max_iterations`.
+    /// Snake-case name: `small_step`, `no_decrease`, `max_iterations` or `stalled`.
     pub fn name(&self) -> &'static str {
         match self {
             StopReason::SmallStep => "small_step",
             StopReason::NoDecrease => "no_decrease",
             StopReason::MaxIterations => "max_iterations",
+            StopReason::Stalled => "stalled",
         }
     }
 

@@ -334,6 +334,7 @@ class PolishSettings:
         tolerance: float = 1e-7,
         snap: bool = True,
         target_planes: bool = False,
+        patience: int = 0,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -357,6 +358,8 @@ class PolishSettings:
     def snap(self) -> bool: ...
     @property
     def target_planes(self) -> bool: ...
+    @property
+    def patience(self) -> int: ...
 
 @final
 class ShiftSearchSettings:
@@ -423,7 +426,8 @@ class Registration:
         was applied, else the final Levenberg–Marquardt steps); see ``stop_reason``."""
     @property
     def stop_reason(self) -> str:
-        """Why that stage stopped: ``"small_step"``, ``"no_decrease"`` or ``"max_iterations"``."""
+        """Why that stage stopped: ``"small_step"``, ``"no_decrease"``, ``"max_iterations"`` or (the
+        polish) ``"stalled"``."""
     @property
     def fitness(self) -> float:
         """Fraction of source points within ``inlier_distance`` of a target point."""
@@ -565,9 +569,10 @@ def register(
             source among its queries, as registering against the cloud does (slower; the same
             numbers as the cloud). None: False for a model (Φ frozen); a cloud is always
             refined.
-        preset: ``"default"``, or ``"scans"`` for scans known to overlap only in part (the
-            robust kernel from the start, multi-start tie 0.05). The arguments below override
-            it; None keeps the preset's value.
+        preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
+            robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
+            object's polish pass ending when its steps stop shrinking). The arguments below override it; None keeps the
+            preset's value.
         robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
             ``"on"``, ``"off"``, or a :class:`RobustSettings`.
         seed: Seed of every random choice; equal seeds give identical results.
@@ -615,6 +620,7 @@ def align(
     init: Optional[Iterable[npt.ArrayLike]] = None,
     anchor: int = 0,
     joint_rounds: int = 0,
+    consensus_iterations: int = 0,
     **settings: Unpack[_AlignKeywords],
 ) -> Alignment:
     """Aligns many scans (views of one object or scene) into the frame of one of them.
@@ -633,9 +639,13 @@ def align(
         anchor: The scan whose frame the poses map into.
         joint_rounds: Joint refinement rounds (each scan against one model of the others);
             0 skips.
+        consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
+            pose graph (every pose at once, against the other scans' points); 0 (the default)
+            skips it.
         seed: Seed of every random choice.
         threads: Worker threads; 0 = one per core.
-        preset: The pairs' preset, ``"scans"`` by default (the robust kernel from the start).
+        preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
+            the start, with an object's polish pass ending when its steps stop shrinking).
 
     The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 
@@ -678,8 +688,16 @@ class Alignment:
     def time_s(self) -> float:
         """Wall time, seconds."""
     @property
+    def consensus(self) -> Dict[str, Any]:
+        """What the multi-view refinement (``consensus_iterations``) did: ``pairs`` (ordered pairs
+        of scans measured), ``iterations``, ``mean_residual_before`` and ``mean_residual_after``
+        (mean distance of the measured points to the other scans' planes, scan units),
+        ``undone`` (the graph's poses kept: the residual did not fall). Zeros when it did not run.
+        """
+    @property
     def stage_times_s(self) -> Dict[str, float]:
-        """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``joint``."""
+        """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``consensus``,
+        ``joint``."""
 
 def register_many(
     pairs: Iterable[
