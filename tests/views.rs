@@ -75,6 +75,12 @@ fn the_anchor_and_the_initial_poses_are_honoured() {
         let (rot, trans) = pose_errors(&pose.unwrap(), &expected);
         assert!(rot < 0.3 && trans < 0.015, "view {k}: {rot}° {trans} m");
     }
+    // One model held at a time instead of all three: the same poses, bit for bit.
+    let one = AlignSettings {
+        models_at_once: 1,
+        ..s
+    };
+    assert_eq!(align(&scans, Some(&init), &one).unwrap().poses, a.poses);
 }
 
 #[test]
@@ -99,4 +105,10 @@ fn too_few_scans_a_bad_anchor_and_bad_initial_poses_are_refused() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("align.init"), "{e}");
+    let s = AlignSettings {
+        models_at_once: 0,
+        ..Default::default()
+    };
+    let e = align(&scans, None, &s).unwrap_err().to_string();
+    assert!(e.contains("align.models_at_once"), "{e}");
 }

@@ -1,8 +1,9 @@
 //! Many views into one frame: [`align`] and its settings and result.
 //!
 //! The stages, each a function of its own:
-//! 1. **models** — a stored model ([`SdfModel`]) of every scan that some pair registers against;
-//!    a scan that cannot be fitted (too few points, no extent) is left out;
+//! 1. **models** — a stored model ([`SdfModel`]) of every scan, a few at a time
+//!    ([`AlignSettings::models_at_once`]), each dropped once its pairs are registered; a scan
+//!    that cannot be fitted (too few points, no extent) is left out;
 //! 2. **pairs** — pairwise registrations through those models (Φ frozen, [`register_many`]):
 //!    every pair when the scans are few ([`AlignSettings::all_pairs_up_to`]), else each scan with
 //!    its next [`AlignSettings::neighbours`] in order, wrapping round (a loop); from the given
@@ -76,8 +77,17 @@ pub struct AlignSettings {
     /// 10 scans the round changed each pose by a few hundredths of a degree either way, for
     /// 40 % more time; on a room with a sparser scan it slid one view 7.7 cm along a wall.
     pub joint_rounds: usize,
+    /// Scans' models held at once: they are fitted this many at a time, in scan order, and each
+    /// dropped once the pairs registered against it are done. Default 4 (a model of one of the
+    /// procedural room's scans, 115,000 returns, takes about 37 MB).
+    #[serde(default = "default_models_at_once")]
+    pub models_at_once: usize,
     /// Worker threads for the pairs (one pair per worker) and the fits; 0 = one per core.
     pub threads: usize,
+}
+
+fn default_models_at_once() -> usize {
+    4
 }
 
 impl Default for AlignSettings {
@@ -93,6 +103,7 @@ impl Default for AlignSettings {
             graph_iterations: 20,
             consensus: ConsensusSettings::default(),
             joint_rounds: 0,
+            models_at_once: default_models_at_once(),
             threads: 0,
         }
     }
@@ -104,6 +115,7 @@ impl AlignSettings {
         self.register.validate()?;
         check::fraction_below_one("align.min_fitness", self.min_fitness)?;
         check::count_at_least("align.neighbours", self.neighbours, 1)?;
+        check::count_at_least("align.models_at_once", self.models_at_once, 1)?;
         check::non_negative(
             "align.consistent_rotation_deg",
             self.consistent_rotation_deg,
@@ -215,36 +227,37 @@ pub fn align(
     let start = Instant::now();
     check_input(scans, init, s)?;
     let mut times = AlignTimes::default();
-    let mut clock = Instant::now();
-    let mut lap = |time: &mut Duration| {
-        *time += clock.elapsed();
-        clock = Instant::now();
-    };
     let pairs = pair_list(scans.len(), s);
-    let (models, mut left_out) = fit_models(scans, s);
+    let mut left_out = Vec::new();
+    let mut edges = models_and_pairs(scans, &pairs, &mut left_out, true, init, s, &mut times)?;
     let usable = scans.len() - left_out.len();
     if usable < 2 {
         return Err(Error::TooFewScans { found: usable });
     }
-    lap(&mut times.models);
-    let left: Vec<usize> = left_out.iter().map(|(k, _)| *k).collect();
-    let mut edges = register_pairs(scans, &models, &pairs, &left, init, s)?;
-    lap(&mut times.pairs);
+    let mut clock = Instant::now();
     let mut poses = pose_graph(scans, &mut edges, init, s);
-    lap(&mut times.graph);
-    if let Some(reversed) = unplaced_reversed(&edges, &poses, &left) {
-        edges.extend(register_pairs(scans, &models, &reversed, &left, init, s)?);
-        lap(&mut times.pairs);
+    lap(&mut clock, &mut times.graph);
+    if let Some(reversed) = unplaced_reversed(&edges, &poses, &left_out) {
+        edges.extend(models_and_pairs(
+            scans,
+            &reversed,
+            &mut left_out,
+            false,
+            init,
+            s,
+            &mut times,
+        )?);
         edges.iter_mut().for_each(|e| e.kept = false);
+        clock = Instant::now();
         poses = pose_graph(scans, &mut edges, init, s);
-        lap(&mut times.graph);
+        lap(&mut clock, &mut times.graph);
     }
     let consensus = consensus(scans, &mut poses, s.anchor, &s.consensus);
-    lap(&mut times.consensus);
+    lap(&mut clock, &mut times.consensus);
     for _ in 0..s.joint_rounds {
         joint_round(scans, &mut poses, s)?;
     }
-    lap(&mut times.joint);
+    lap(&mut clock, &mut times.joint);
     for (k, pose) in poses.iter().enumerate() {
         if pose.is_none() && !left_out.iter().any(|(i, _)| *i == k) {
             left_out.push((k, "no pairwise registration joins it to the others".into()));
@@ -270,6 +283,12 @@ pub fn align(
         times,
         time: start.elapsed(),
     })
+}
+
+/// Adds the time since `clock` to `time` and restarts `clock`.
+fn lap(clock: &mut Instant, time: &mut Duration) {
+    *time += clock.elapsed();
+    *clock = Instant::now();
 }
 
 /// At least two scans, valid settings, an anchor among the scans, one initial pose per scan.
@@ -318,71 +337,79 @@ fn pair_list(n: usize, s: &AlignSettings) -> Vec<(usize, usize)> {
     pairs
 }
 
-/// Stage 1: a model of every scan (`None` for one that cannot be fitted), and the scans left
-/// out because they cannot be fitted.
-#[allow(clippy::type_complexity)]
-fn fit_models(
+/// Stages 1 and 2: each scan's model and the pairwise registrations through them. The models
+/// are fitted [`AlignSettings::models_at_once`] at a time, in scan order, and each is dropped
+/// once the pairs registered against it are done, so memory holds a few models, not one per
+/// scan. With `fit_all` the scans no pair registers against are fitted too (and dropped): one
+/// that cannot be fitted cannot be a source either, and is left out. A scan found unfittable is
+/// added to `left_out` and every pair with it dropped. Adds each stage's time to `times`.
+#[allow(clippy::too_many_arguments)]
+fn models_and_pairs(
     scans: &[Vec<Point3<f64>>],
+    pairs: &[(usize, usize)],
+    left_out: &mut Vec<(usize, String)>,
+    fit_all: bool,
+    init: Option<&[Isometry3<f64>]>,
     s: &AlignSettings,
-) -> (Vec<Option<SdfModel>>, Vec<(usize, String)>) {
+    times: &mut AlignTimes,
+) -> Result<Vec<Edge>, Error> {
     let settings = RegisterSettings {
         threads: s.threads,
         ..s.register.clone()
     };
-    let mut left_out = Vec::new();
-    let models = scans
-        .iter()
-        .enumerate()
-        .map(|(k, scan)| {
-            // Every scan is fitted: one that cannot be a target cannot be a source either, and
-            // a scan left unplaced has its pairs registered the other way round.
-            match SdfModel::fit(scan, &settings) {
-                Ok(model) => Some(model),
+    let is_left = |left_out: &[(usize, String)], k: usize| left_out.iter().any(|(i, _)| *i == k);
+    let targets: Vec<usize> = (0..scans.len())
+        .filter(|&k| fit_all || pairs.iter().any(|&(i, _)| i == k))
+        .filter(|&k| !is_left(left_out, k))
+        .collect();
+    let mut edges = Vec::new();
+    for chunk in targets.chunks(s.models_at_once.max(1)) {
+        let clock = Instant::now();
+        let models: Vec<(usize, SdfModel)> = chunk
+            .iter()
+            .filter_map(|&k| match SdfModel::fit(&scans[k], &settings) {
+                Ok(model) => Some((k, model)),
                 Err(e) => {
                     left_out.push((k, e.to_string()));
                     None
                 }
-            }
-        })
-        .collect();
-    (models, left_out)
-}
-
-/// Stage 2: the pairwise registrations through the models (pairs whose scan was left out are
-/// not tried).
-fn register_pairs(
-    scans: &[Vec<Point3<f64>>],
-    models: &[Option<SdfModel>],
-    pairs: &[(usize, usize)],
-    left_out: &[usize],
-    init: Option<&[Isometry3<f64>]>,
-    s: &AlignSettings,
-) -> Result<Vec<Edge>, Error> {
-    let tried: Vec<(usize, usize)> = pairs
-        .iter()
-        .copied()
-        .filter(|&(i, j)| models[i].is_some() && !left_out.contains(&j))
-        .collect();
-    let batch: Vec<Pair<'_>> = tried
-        .iter()
-        .map(|&(i, j)| Pair {
-            source: Cow::Borrowed(&scans[j]),
-            target: PairTarget::Model(models[i].as_ref().expect("filtered")),
-            init: init.map(|p| p[i].inverse() * p[j]),
-            seed: None,
-        })
-        .collect();
-    let results = register_many(&batch, &s.register, s.threads)?;
-    Ok(tried
-        .into_iter()
-        .zip(results)
-        .map(|((target, source), r)| Edge {
-            target,
-            source,
-            registration: r.map_err(|e| e.to_string()),
-            kept: false,
-        })
-        .collect())
+            })
+            .collect();
+        times.models += clock.elapsed();
+        let clock = Instant::now();
+        let tried: Vec<(usize, usize, &SdfModel)> = pairs
+            .iter()
+            .filter(|&&(_, j)| !is_left(left_out, j))
+            .filter_map(|&(i, j)| {
+                let (_, model) = models.iter().find(|(k, _)| *k == i)?;
+                Some((i, j, model))
+            })
+            .collect();
+        let batch: Vec<Pair<'_>> = tried
+            .iter()
+            .map(|&(i, j, model)| Pair {
+                source: Cow::Borrowed(&scans[j]),
+                target: PairTarget::Model(model),
+                init: init.map(|p| p[i].inverse() * p[j]),
+                seed: None,
+            })
+            .collect();
+        let results = register_many(&batch, &s.register, s.threads)?;
+        edges.extend(
+            tried
+                .into_iter()
+                .zip(results)
+                .map(|((target, source, _), r)| Edge {
+                    target,
+                    source,
+                    registration: r.map_err(|e| e.to_string()),
+                    kept: false,
+                }),
+        );
+        times.pairs += clock.elapsed();
+    }
+    edges.retain(|e| !is_left(left_out, e.source) && !is_left(left_out, e.target));
+    Ok(edges)
 }
 
 /// Stage 2 again, for the scans the pose graph left unplaced (a scan of something else, or a
@@ -392,9 +419,9 @@ fn register_pairs(
 fn unplaced_reversed(
     edges: &[Edge],
     poses: &[Option<Isometry3<f64>>],
-    left_out: &[usize],
+    left_out: &[(usize, String)],
 ) -> Option<Vec<(usize, usize)>> {
-    let unplaced = |k: usize| poses[k].is_none() && !left_out.contains(&k);
+    let unplaced = |k: usize| poses[k].is_none() && !left_out.iter().any(|(i, _)| *i == k);
     let reversed: Vec<(usize, usize)> = edges
         .iter()
         .filter(|e| unplaced(e.target) || unplaced(e.source))
