@@ -8,13 +8,16 @@
 //!    every pair when the scans are few ([`AlignSettings::all_pairs_up_to`]), else each scan with
 //!    its next [`AlignSettings::neighbours`] in order, wrapping round (a loop); from the given
 //!    initial poses when there are any, else from nothing;
-//! 3. **graph** — candidate edges (fitness ≥ [`AlignSettings::min_fitness`]); the spanning tree
-//!    of the highest fitness gives the starting poses; a scan with several candidate edges that
-//!    neither a cycle through a third scan nor the tree confirms (a scan of something else) is
-//!    left out and the tree made again without it; an edge outside it is kept only when it
-//!    agrees with the tree ([`AlignSettings::consistent_rotation_deg`],
+//! 3. **graph** — candidate edges (fitness ≥ [`AlignSettings::min_fitness`]; of a pair
+//!    registered both ways, the way of higher fitness); a scan with several candidate edges that
+//!    no cycle through a third scan confirms is kept only when two of its edges put it at the
+//!    same pose, with the edges that agree (a scan of something else is left out); the spanning
+//!    tree of the highest fitness gives the starting poses; an edge outside it is kept only when
+//!    it agrees with the tree ([`AlignSettings::consistent_rotation_deg`],
 //!    [`AlignSettings::consistent_translation`]); Gauss–Newton on the kept edges
-//!    ([`crate::views::graph`]). A scan no kept edge joins to the anchor is left out;
+//!    ([`crate::views::graph`]). A scan left unplaced has its pairs registered the other way
+//!    round (stage 2 again) and the graph is made again; a scan no kept edge then joins to the
+//!    anchor is left out;
 //! 4. **consensus** (off by default) — every pose refined at once, point-to-plane against the
 //!    other scans' points where they overlap ([`crate::views::consensus`],
 //!    [`AlignSettings::consensus`]);
@@ -259,7 +262,7 @@ pub fn align(
     }
     lap(&mut clock, &mut times.joint);
     for (k, pose) in poses.iter().enumerate() {
-        if pose.is_none() && !left_out.iter().any(|(i, _)| *i == k) {
+        if pose.is_none() && !is_left_out(&left_out, k) {
             left_out.push((k, "no pairwise registration joins it to the others".into()));
         }
     }
@@ -283,6 +286,11 @@ pub fn align(
         times,
         time: start.elapsed(),
     })
+}
+
+/// Whether scan `k` is among those `left_out`.
+fn is_left_out(left_out: &[(usize, String)], k: usize) -> bool {
+    left_out.iter().any(|(i, _)| *i == k)
 }
 
 /// Adds the time since `clock` to `time` and restarts `clock`.
@@ -357,10 +365,9 @@ fn models_and_pairs(
         threads: s.threads,
         ..s.register.clone()
     };
-    let is_left = |left_out: &[(usize, String)], k: usize| left_out.iter().any(|(i, _)| *i == k);
     let targets: Vec<usize> = (0..scans.len())
         .filter(|&k| fit_all || pairs.iter().any(|&(i, _)| i == k))
-        .filter(|&k| !is_left(left_out, k))
+        .filter(|&k| !is_left_out(left_out, k))
         .collect();
     let mut edges = Vec::new();
     for chunk in targets.chunks(s.models_at_once.max(1)) {
@@ -379,7 +386,7 @@ fn models_and_pairs(
         let clock = Instant::now();
         let tried: Vec<(usize, usize, &SdfModel)> = pairs
             .iter()
-            .filter(|&&(_, j)| !is_left(left_out, j))
+            .filter(|&&(_, j)| !is_left_out(left_out, j))
             .filter_map(|&(i, j)| {
                 let (_, model) = models.iter().find(|(k, _)| *k == i)?;
                 Some((i, j, model))
@@ -408,7 +415,7 @@ fn models_and_pairs(
         );
         times.pairs += clock.elapsed();
     }
-    edges.retain(|e| !is_left(left_out, e.source) && !is_left(left_out, e.target));
+    edges.retain(|e| !is_left_out(left_out, e.source) && !is_left_out(left_out, e.target));
     Ok(edges)
 }
 
@@ -421,7 +428,7 @@ fn unplaced_reversed(
     poses: &[Option<Isometry3<f64>>],
     left_out: &[(usize, String)],
 ) -> Option<Vec<(usize, usize)>> {
-    let unplaced = |k: usize| poses[k].is_none() && !left_out.iter().any(|(i, _)| *i == k);
+    let unplaced = |k: usize| poses[k].is_none() && !is_left_out(left_out, k);
     let reversed: Vec<(usize, usize)> = edges
         .iter()
         .filter(|e| unplaced(e.target) || unplaced(e.source))

@@ -15,8 +15,6 @@
 //!
 //! Lengths are the scans' own units.
 
-use std::num::NonZeroUsize;
-
 use kiddo::SquaredEuclidean;
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Point3, Translation3, Vector3, Vector6};
 use rand::SeedableRng;
@@ -151,16 +149,10 @@ impl Scan {
         let x = y.coords - self.centre;
         let nn = self
             .tree
-            .nearest_n::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32], ONE);
-        nn.first()
-            .is_some_and(|n| (n.distance as f64) <= gate * gate)
+            .nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+        (nn.distance as f64) <= gate * gate
     }
 }
-
-const ONE: NonZeroUsize = match NonZeroUsize::new(1) {
-    Some(n) => n,
-    None => unreachable!(),
-};
 
 /// One ordered pair's normal equations about `m`: `Σ w JᵀJ`, `Σ w J r` with `J = ∂r/∂δⱼ`, and
 /// `Σ |r|`, the count of points measured.
