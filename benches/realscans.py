@@ -2,6 +2,7 @@
 
     scripts/python-env                      # once: the venv with the sdfreg wheel
     .venv/bin/python benches/realscans.py --data ../shared/data [--json out.json] [key=value ...]
+    .venv-compare/bin/python benches/realscans.py --only 3dmatch --reference   # what gt.txt is worth
 
 Pairs (metres, every registration from the clouds as they are — no initial guess):
 - bunny: bun045→bun000, bun090→bun045, bun180→bun090, bun270→bun180, bun315→bun270,
@@ -75,6 +76,7 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
     rot, tr = pose_errors(est, truth)
     row = {
         "pair": name,
+        "transformation": np.asarray(est).tolist(),
         "rotation_error_deg": rot,
         "translation_error_m": tr,
         "fitness": r.fitness,
@@ -88,6 +90,33 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
           f"fitness {r.fitness:.3f}{' robust' if r.robust else '       '}  {r.time_s:.2f} s{free}",
           flush=True)
     return row
+
+
+def reference_worth(match: Path, row: dict) -> None:
+    """Point-to-plane ICP and GICP (Open3D, normals from 30 neighbours within 0.1 m) started
+    at the published pose of the 3DMatch pair: how far each moves from it, and how far sdfreg's
+    answer (`row`) is from where they stop. A reference the data's own best fit moves away
+    from cannot score a method closer than that."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        print("  --reference needs Open3D: run with .venv-compare/bin/python (benches/compare-env)")
+        return
+    reg = o3d.pipelines.registration
+    src = o3d.io.read_point_cloud(str(match / "src.ply"))
+    tgt = o3d.io.read_point_cloud(str(match / "tgt.ply"))
+    for pc in (src, tgt):
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.1, max_nn=30))
+    gt = np.loadtxt(match / "gt.txt")
+    ours = np.asarray(row["transformation"])
+    for name, est in (("point-to-plane ICP", reg.TransformationEstimationPointToPlane()),
+                      ("GICP", reg.TransformationEstimationForGeneralizedICP())):
+        for dist in (0.05, 0.1):
+            t = reg.registration_icp(src, tgt, dist, gt, est,
+                                     reg.ICPConvergenceCriteria(max_iteration=200)).transformation
+            a, b = pose_errors(t, gt), pose_errors(t, ours)
+            print(f"  Open3D {name} from gt.txt ({dist} m): {a[0]:.3f}° / {a[1]:.3f} m from it, "
+                  f"{b[0]:.3f}° / {b[1]:.3f} m from sdfreg's answer")
 
 
 def random_motion(rng: np.random.Generator, max_deg: float, max_t: float) -> np.ndarray:
@@ -117,6 +146,9 @@ def main() -> None:
                         / "shared" / "data")
     parser.add_argument("--paper-pairs", type=int, default=10)
     parser.add_argument("--only", default="", help="bunny, offset, 3dmatch or paper3dmatch")
+    parser.add_argument("--reference", action="store_true",
+                        help="with Open3D installed (benches/compare-env): how far ICP and GICP "
+                        "move from 3DMatch's published pose, what that reference is worth")
     parser.add_argument("--json", type=Path)
     parser.add_argument("settings", nargs="*", help="key=value passed to sdfreg.register")
     args = parser.parse_args()
@@ -151,6 +183,8 @@ def main() -> None:
         if not only or "3dmatch" in only:
             rows.append(run("3dmatch redkitchen 06→00", src, tgt, np.loadtxt(match / "gt.txt"),
                             1.0, settings))
+            if args.reference:
+                reference_worth(match, rows[-1])
         if not only or "paper3dmatch" in only:
             rng = np.random.default_rng(0)
             paper = []

@@ -211,3 +211,45 @@ fn a_voxel_in_metres_is_the_voxel_the_model_gets() {
         ModelKind::Global
     );
 }
+
+#[test]
+fn a_scene_full_call_takes_its_own_lm_steps_and_a_model_or_an_object_does_not() {
+    // `scene_lm_steps_per_alternation` and `scene_final_lm_steps` replace the LM step counts
+    // when Φ is local and refined (a scene's full call), and only then.
+    let pair = street_pair();
+    let mut none = RegisterSettings::default();
+    none.coarse_to_fine.scene_lm_steps_per_alternation = 0;
+    none.coarse_to_fine.scene_final_lm_steps = 0;
+    let start = Some(&pair.t_target_source);
+    let r = register(&pair.source, &pair.target, start, &none).unwrap();
+    assert_eq!(r.iterations, 0, "no LM step on the street");
+    let r = register(
+        &pair.source,
+        &pair.target,
+        start,
+        &RegisterSettings::default(),
+    )
+    .unwrap();
+    assert!(r.iterations > 0, "the defaults take LM steps");
+    // A stored scene model (Φ frozen) keeps the objects' steps.
+    let model = SdfModel::fit(&pair.target, &none).unwrap();
+    let a = model
+        .register(&pair.source, start, &RegisterSettings::default())
+        .unwrap();
+    let b = model.register(&pair.source, start, &none).unwrap();
+    assert!(a.iterations > 0);
+    assert_eq!(a.t_target_source, b.t_target_source);
+    assert_eq!(a.iterations, b.iterations);
+    // An object (global Φ) ignores them: the same result to the bit.
+    let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(3);
+    let object = sdfreg_core::sim::shapes::blob(512, &mut rng);
+    let moved: Vec<_> = object
+        .iter()
+        .map(|p| nalgebra::Point3::new(p.x + 0.01, p.y - 0.02, p.z))
+        .collect();
+    let a = register(&moved, &object, None, &RegisterSettings::default()).unwrap();
+    let b = register(&moved, &object, None, &none).unwrap();
+    assert!(a.iterations > 0);
+    assert_eq!(a.t_target_source, b.t_target_source);
+    assert_eq!(a.iterations, b.iterations);
+}

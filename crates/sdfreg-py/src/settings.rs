@@ -288,6 +288,9 @@ settings_class! {
     ///         plane of the target points about it) and not trained; False: trained by Adam.
     ///     prefit_steps: Adam steps of the pre-fit for a local Φ (in place of
     ///         ``FitSettings.prefit_steps``).
+    ///     network_batch_divisor: With ``plane_fit``, the network's Adam batches
+    ///         (``FitSettings``' query, source and surface batches) are divided by this (the
+    ///         network only gives the far field).
     ///     min_voxel_spacings: A voxel below this many target point spacings is refused.
     ///     max_memory_mib: A grid whose corrections would take more memory than this (MiB,
     ///         80 bytes each) is refused before it is built, with the size it would have had.
@@ -305,6 +308,7 @@ settings_class! {
         lr_scale: f64 = 1.0,
         plane_fit: bool = true,
         prefit_steps: i64 = 200,
+        network_batch_divisor: i64 = 4,
         min_voxel_spacings: f64 = 0.5,
         max_memory_mib: f64 = 1024.0,
     }
@@ -348,12 +352,17 @@ settings_class! {
     ///     scene_alternations: The same for a scene (a local Φ).
     ///     lm_steps_per_alternation: LM steps per alternation.
     ///     final_lm_steps: LM steps at most on the final Φ.
+    ///     scene_lm_steps_per_alternation: LM steps per alternation in a scene's full call (a
+    ///         local Φ, refined; a stored model's frozen Φ keeps ``lm_steps_per_alternation``).
+    ///     scene_final_lm_steps: LM steps at most on the final Φ in a scene's full call.
     ///     final_lm_baked: The final LM reads a stored object model's Φ baked into its grid.
     PyCoarseToFineSettings => CoarseToFineSettings as "CoarseToFineSettings", "coarse_to_fine" {
         alternations: i64 = 10,
         scene_alternations: i64 = 5,
         lm_steps_per_alternation: i64 = 2,
         final_lm_steps: i64 = 10,
+        scene_lm_steps_per_alternation: i64 = 5,
+        scene_final_lm_steps: i64 = 30,
         final_lm_baked: bool = false,
     }
 }

@@ -452,13 +452,21 @@ impl SdfFitter {
     /// model's queries.
     fn draw_batch(&mut self) -> Batch {
         let st = &self.settings;
+        // The network of a local Φ whose corrections come from planes gives only the far field:
+        // smaller batches (`LocalSettings::network_batch_divisor`).
+        let divisor = if self.field.grid().is_some() && st.local.plane_fit {
+            st.local.network_batch_divisor.max(1)
+        } else {
+            1
+        };
         let (nq, ns) = if self.source_queries.is_empty() {
             (st.batch_queries, 0)
         } else {
             (st.refine_batch_queries, st.batch_source)
         };
+        let (nq, ns) = ((nq / divisor).max(1), ns / divisor);
         let nq = nq.min(self.pool.len());
-        let nt = st.batch_surface;
+        let nt = (st.batch_surface / divisor).max(1);
         let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
         let mut queries = Vec::with_capacity(nq + ns);
         for _ in 0..nq {
@@ -628,6 +636,44 @@ mod tests {
         let now: FitSettings =
             serde_json::from_value(serde_json::to_value(FitSettings::default()).unwrap()).unwrap();
         assert_eq!(now, FitSettings::default());
+    }
+
+    #[test]
+    fn settings_written_before_the_batch_divisor_keep_their_batches() {
+        let mut json = serde_json::to_value(FitSettings::default()).unwrap();
+        let local = json["local"].as_object_mut().unwrap();
+        assert!(local.remove("network_batch_divisor").is_some());
+        let old: FitSettings = serde_json::from_value(json).unwrap();
+        assert_eq!(old.local.network_batch_divisor, 1);
+        assert_eq!(FitSettings::default().local.network_batch_divisor, 4);
+    }
+
+    #[test]
+    fn a_local_network_from_planes_draws_divided_batches_and_others_do_not() {
+        let mut s = FitSettings::default();
+        s.local.voxel = Some(0.05);
+        let counts = |s: &FitSettings| {
+            let mut f = SdfFitter::new(sphere(2000), &MlpSettings::default(), s, 1);
+            let b = f.draw_batch();
+            (b.nq, b.queries.len(), b.surface.len())
+        };
+        // Local, corrections from planes: a quarter of 1024 perturbation queries and of 512
+        // surface points.
+        assert_eq!(counts(&s), (256, 256, 128));
+        // Corrections trained by Adam: the network's batches whole, and the local queries.
+        let mut trained = s.clone();
+        trained.local.plane_fit = false;
+        assert_eq!(counts(&trained), (1024, 1024 + 2048, 512));
+        // A global Φ: whole.
+        let mut global = s.clone();
+        global.local.kind = crate::ModelKind::Global;
+        global.local.voxel = None;
+        assert_eq!(counts(&global), (1024, 1024, 512));
+        // Refinement: moved-source queries divided too.
+        let mut f = SdfFitter::new(sphere(2000), &MlpSettings::default(), &s, 1);
+        f.add_source_queries(&sphere(100));
+        let b = f.draw_batch();
+        assert_eq!((b.nq, b.queries.len(), b.surface.len()), (128, 256, 128));
     }
 
     #[test]

@@ -211,7 +211,14 @@ fn run<S: Surface>(
     lap(&mut times.coarse_to_fine);
     let after_alternations = lm.pose;
     progress(Stage::Final);
-    let lm_stop = final_lm(&*fit, &unit.source, &mut lm, &s.coarse_to_fine, policy);
+    let lm_stop = final_lm(
+        &*fit,
+        &unit.source,
+        &mut lm,
+        &s.coarse_to_fine,
+        policy,
+        refine,
+    );
     lap(&mut times.final_lm);
     let polish_settings = s.polish.for_target(fit.is_local());
     let planes = (fit.is_local() || polish_settings.target_planes)

@@ -144,6 +144,8 @@ impl RegisterSettings {
                 scene_alternations: 0,
                 lm_steps_per_alternation: 0,
                 final_lm_steps: 5,
+                scene_lm_steps_per_alternation: 0,
+                scene_final_lm_steps: 5,
                 final_lm_baked: true,
             },
             robust: RobustSettings {

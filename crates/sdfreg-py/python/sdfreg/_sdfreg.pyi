@@ -152,6 +152,7 @@ class LocalSettings:
         lr_scale: float = 1.0,
         plane_fit: bool = True,
         prefit_steps: int = 200,
+        network_batch_divisor: int = 4,
         min_voxel_spacings: float = 0.5,
         max_memory_mib: float = 1024.0,
     ) -> LocalSettings: ...
@@ -181,6 +182,8 @@ class LocalSettings:
     def plane_fit(self) -> bool: ...
     @property
     def prefit_steps(self) -> int: ...
+    @property
+    def network_batch_divisor(self) -> int: ...
     @property
     def min_voxel_spacings(self) -> float: ...
     @property
@@ -239,6 +242,8 @@ class CoarseToFineSettings:
         scene_alternations: int = 5,
         lm_steps_per_alternation: int = 2,
         final_lm_steps: int = 10,
+        scene_lm_steps_per_alternation: int = 5,
+        scene_final_lm_steps: int = 30,
         final_lm_baked: bool = False,
     ) -> CoarseToFineSettings: ...
     @property
@@ -249,6 +254,10 @@ class CoarseToFineSettings:
     def lm_steps_per_alternation(self) -> int: ...
     @property
     def final_lm_steps(self) -> int: ...
+    @property
+    def scene_lm_steps_per_alternation(self) -> int: ...
+    @property
+    def scene_final_lm_steps(self) -> int: ...
     @property
     def final_lm_baked(self) -> bool: ...
 
