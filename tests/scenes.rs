@@ -253,3 +253,37 @@ fn a_scene_full_call_takes_its_own_lm_steps_and_a_model_or_an_object_does_not() 
     assert_eq!(a.t_target_source, b.t_target_source);
     assert_eq!(a.iterations, b.iterations);
 }
+
+#[test]
+fn a_start_that_leaves_the_street_outside_is_rescued_by_the_multi_start() {
+    // A guess half a turn off: its result leaves most of the source outside the target's
+    // coverage; the multi-start, run as if no guess had been given, lands.
+    let pair = street_pair();
+    let turn = nalgebra::Isometry3::new(
+        nalgebra::Vector3::new(6.0, -4.0, 0.0),
+        nalgebra::Vector3::z() * std::f64::consts::FRAC_PI_2,
+    );
+    let start = turn * pair.t_target_source;
+    let s = RegisterSettings::default();
+    let mut without = s.clone();
+    without.multistart.rescue = false;
+    let r = register(&pair.source, &pair.target, Some(&start), &without).unwrap();
+    let (rot, _) = pose_errors(&r.t_target_source, &pair.t_target_source);
+    assert!(rot > 5.0, "without the rescue the guess ends {rot}° off");
+    assert_eq!(r.stages.rescue, sdfreg_core::RescueReport::NotTried);
+    let r = register(&pair.source, &pair.target, Some(&start), &s).unwrap();
+    let (rot, trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
+    assert!(rot <= 0.1 && trans <= 0.02, "rescued: {rot}° {trans} m");
+    let sdfreg_core::RescueReport::Kept {
+        given_outside,
+        rescue_outside,
+    } = r.stages.rescue
+    else {
+        panic!("{:?}", r.stages.rescue);
+    };
+    assert!(given_outside > 0.2 && rescue_outside < given_outside);
+    assert!(r.stage_times.other_run > std::time::Duration::ZERO);
+    // From the truth nothing is tried.
+    let r = register(&pair.source, &pair.target, Some(&pair.t_target_source), &s).unwrap();
+    assert_eq!(r.stages.rescue, sdfreg_core::RescueReport::NotTried);
+}

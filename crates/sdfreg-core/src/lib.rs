@@ -111,7 +111,7 @@ pub use pipeline::register::{register, register_with_progress};
 pub use pipeline::registration::Registration;
 pub use pipeline::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RobustReport, ShiftSearchReport, Stage, StageTimes, Stages,
+    RescueReport, RobustReport, ShiftSearchReport, Stage, StageTimes, Stages,
 };
 pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
 pub use pipeline::scale::{ScaleSettings, DEFAULT_RANGE, UNIT_FACTORS};

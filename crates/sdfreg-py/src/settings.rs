@@ -329,6 +329,9 @@ settings_class! {
     ///     distinct_rotation_deg: Starts closer than this (degrees)…
     ///     distinct_translation: …and this count as one.
     ///     hypotheses: Hypotheses carried into the coarse-to-fine loop.
+    ///     rescue: With ``init`` given and its result still leaving more than the robust mode's
+    ///         ``outside_share`` of the source outside the target's coverage, run again from the
+    ///         multi-start and return that when it leaves less outside.
     PyMultistartSettings => MultistartSettings as "MultistartSettings", "multistart" {
         enabled: bool = true,
         offset: f64 = 0.1,
@@ -341,6 +344,7 @@ settings_class! {
         distinct_rotation_deg: f64 = 5.0,
         distinct_translation: f64 = 0.02,
         hypotheses: i64 = 3,
+        rescue: bool = true,
     }
 }
 

@@ -250,7 +250,9 @@ def test_stages_say_what_each_stage_did(pair) -> None:
     source, target, truth = pair
     r = sdfreg.register(source, target, **QUICK)
     st = r.stages
-    assert list(st) == ["initial", "coarse_to_fine", "final_lm", "robust", "polish", "shift_search"]
+    assert list(st) == ["initial", "coarse_to_fine", "final_lm", "robust", "polish", "shift_search",
+                        "rescue"]
+    assert st["rescue"] == {"kind": "not_tried"}
     assert st["initial"]["starts"] == 168 and not st["initial"]["given"]
     # The source is the target's own sample, moved: the polish snaps it onto those points.
     assert st["polish"]["result"] == "snapped" and r.stop_reason == st["polish"]["stop_reason"]

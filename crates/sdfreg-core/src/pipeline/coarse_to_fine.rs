@@ -5,9 +5,10 @@
 //! field; with a robust kernel, points at `|Φ| ≥ c`, outside the target's coverage, are left
 //! out), Φ is refined for [`crate::FitSettings::refine_steps`] Adam steps, and each hypothesis
 //! takes [`CoarseToFineSettings::lm_steps_per_alternation`] LM steps
-//! ([`CoarseToFineSettings::scene_lm_steps_per_alternation`] for a scene's full call). Halfway, hypotheses that
-//! fit clearly worse than the best are dropped; at the end the best-fitting one is kept (near-ties
-//! to the least rotation). Then LM on the frozen Φ until converged ([`final_lm`]).
+//! ([`CoarseToFineSettings::scene_lm_steps_per_alternation`] in a scene's full call). Halfway,
+//! hypotheses that fit clearly worse than the best are dropped; at the end the best-fitting one
+//! is kept (near-ties to the least rotation). Then LM on the frozen Φ until converged
+//! ([`final_lm`]).
 //!
 //! Entry points: [`alternate`], [`final_lm`].
 
@@ -226,7 +227,8 @@ pub(crate) fn alternate<S: Surface>(
 /// LM on the frozen Φ from `lm`'s pose until converged, at most
 /// [`CoarseToFineSettings::final_lm_steps`] steps
 /// ([`CoarseToFineSettings::scene_final_lm_steps`] for a local Φ that was `refined`), with
-/// the policy's final κ: Φ itself, or with [`CoarseToFineSettings::final_lm_baked`] the grid a frozen global Φ is baked into.
+/// the policy's final κ: Φ itself, or with [`CoarseToFineSettings::final_lm_baked`] the grid a
+/// frozen global Φ is baked into.
 pub(crate) fn final_lm<S: Surface>(
     fit: &S,
     source: &[Point3<f64>],

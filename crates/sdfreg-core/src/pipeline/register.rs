@@ -41,9 +41,9 @@ use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
 use crate::pipeline::registration::{measure, Registration, Trace};
-use crate::pipeline::report::{InitialReport, Stage, StageTimes};
+use crate::pipeline::report::{InitialReport, RescueReport, Stage, StageTimes};
 use crate::pipeline::rerun::robust_rerun;
-use crate::pipeline::robust::{outside_share, KernelPolicy};
+use crate::pipeline::robust::{outside_share, KernelPolicy, RobustMode};
 use crate::pipeline::scale::scale_starts;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::pipeline::shift_search::search;
@@ -152,11 +152,10 @@ fn register_drawn<S: Surface>(
 ) -> Result<Registration, Error> {
     let start = Instant::now();
     let unit = in_unit_frame(norm, source)?;
-    let run = |s: &RegisterSettings, policy| {
+    let run_from = |init: Option<&Isometry3<f64>>, s: &RegisterSettings, policy| {
         let mut rng = rng.clone();
         run(surface, &unit, &mut rng, init, s, policy, refine, progress)
     };
-    let first = run(s, s.robust.first_run());
     let outside = |r: &Registration| {
         let moved = if s.scale.enabled {
             let pose = unit.norm.similarity_to_unit(&r.t_target_source, r.scale);
@@ -167,9 +166,64 @@ fn register_drawn<S: Surface>(
         };
         outside_share(&moved, surface.tree(), surface.spacing())
     };
-    let mut r = robust_rerun(first, s, outside, run);
+    // Stage 6: the run, and its robust re-run when least squares fitted poorly.
+    let from = |init: Option<&Isometry3<f64>>| {
+        let first = run_from(init, s, s.robust.first_run());
+        robust_rerun(first, s, outside, |s, policy| run_from(init, s, policy))
+    };
+    let mut r = from(init);
+    if let Some(share) = rescue_share(init, s) {
+        r = rescue(r, share, outside, || from(None));
+    }
     r.time = start.elapsed();
     Ok(r)
+}
+
+/// The share of the source outside the target's coverage above which a given guess's result
+/// is rescued by the multi-start ([`crate::MultistartSettings::rescue`]), when it may be.
+fn rescue_share(init: Option<&Isometry3<f64>>, s: &RegisterSettings) -> Option<f64> {
+    match s.robust.mode {
+        RobustMode::Auto { outside_share, .. }
+            if init.is_some() && s.multistart.enabled && s.multistart.rescue =>
+        {
+            Some(outside_share)
+        }
+        _ => None,
+    }
+}
+
+/// A given guess's result `given` when it leaves at most `share` of the source outside the
+/// target's coverage (`outside`); else the result from the multi-start (`from_scratch`) when
+/// that leaves less outside, with [`Stages::rescue`](crate::Stages) saying which, and the time
+/// of the run not returned in `other_run`.
+fn rescue(
+    given: Registration,
+    share: f64,
+    outside: impl Fn(&Registration) -> f64,
+    from_scratch: impl FnOnce() -> Registration,
+) -> Registration {
+    let given_outside = outside(&given);
+    if given_outside <= share {
+        return given;
+    }
+    let scratch = from_scratch();
+    let rescue_outside = outside(&scratch);
+    let (mut kept, other, report) = if rescue_outside < given_outside {
+        let report = RescueReport::Kept {
+            given_outside,
+            rescue_outside,
+        };
+        (scratch, given, report)
+    } else {
+        let report = RescueReport::Rejected {
+            given_outside,
+            rescue_outside,
+        };
+        (given, scratch, report)
+    };
+    kept.stage_times.other_run += other.stage_times.run() + other.stage_times.other_run;
+    kept.stages.rescue = report;
+    kept
 }
 
 /// One registration run with the kernel `policy` against `surface` (a private copy of Φ refined

@@ -9,7 +9,7 @@ use crate::geometry::cloud::Normalization;
 use crate::pipeline::polish::PolishOutcome;
 use crate::pipeline::report::{
     CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RobustReport, ShiftSearchReport, StageTimes, Stages,
+    RescueReport, RobustReport, ShiftSearchReport, StageTimes, Stages,
 };
 use crate::pipeline::settings::RegisterSettings;
 use crate::pipeline::shift_search::Searched;
@@ -157,6 +157,7 @@ pub(crate) fn measure<S: Surface>(
             fitness_gain: t.searched.fitness - t.searched.start_fitness,
             change: change(&t.polished.pose, &t.searched.pose),
         },
+        rescue: RescueReport::NotTried,
     };
     let q = quality(
         fit.phi(),

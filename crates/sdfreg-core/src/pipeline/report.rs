@@ -163,6 +163,33 @@ pub enum RobustReport {
     },
 }
 
+/// Whether a given initial guess was rescued by the multi-start
+/// ([`crate::MultistartSettings::rescue`]): its result left too much of the source outside the
+/// target's coverage, and the registration ran again as if no guess had been given.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+#[non_exhaustive]
+pub enum RescueReport {
+    /// Not tried: no guess given, or its result within the coverage.
+    #[default]
+    NotTried,
+    /// The run from the multi-start left less of the source outside and was returned.
+    Kept {
+        /// The share of the source the guess's result left outside the target's coverage.
+        given_outside: f64,
+        /// The share the multi-start's result left outside.
+        rescue_outside: f64,
+    },
+    /// The run from the multi-start did not leave less outside; the guess's result was
+    /// returned.
+    Rejected {
+        /// The share of the source the guess's result left outside the target's coverage.
+        given_outside: f64,
+        /// The share the multi-start's result left outside.
+        rescue_outside: f64,
+    },
+}
+
 /// What each stage of the returned run did, in pipeline order.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Stages {
@@ -178,6 +205,9 @@ pub struct Stages {
     pub polish: PolishReport,
     /// The shift search.
     pub shift_search: ShiftSearchReport,
+    /// The multi-start's rescue of a given guess.
+    #[serde(default)]
+    pub rescue: RescueReport,
 }
 
 /// Wall time of each stage of a registration ([`crate::Registration::stage_times`]): where the

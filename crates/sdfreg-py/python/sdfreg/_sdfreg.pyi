@@ -207,6 +207,7 @@ class MultistartSettings:
         distinct_rotation_deg: float = 5.0,
         distinct_translation: float = 0.02,
         hypotheses: int = 3,
+        rescue: bool = True,
     ) -> MultistartSettings: ...
     @property
     def enabled(self) -> bool: ...
@@ -230,6 +231,8 @@ class MultistartSettings:
     def distinct_translation(self) -> float: ...
     @property
     def hypotheses(self) -> int: ...
+    @property
+    def rescue(self) -> bool: ...
 
 @final
 class CoarseToFineSettings:
