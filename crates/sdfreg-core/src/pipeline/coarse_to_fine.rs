@@ -99,16 +99,21 @@ impl CoarseToFineSettings {
         Ok(())
     }
 
-    /// LM steps per alternation and at most on the final Φ: a scene's when Φ is local and
-    /// refined (`scene`), else the objects'.
-    fn lm_steps(&self, scene: bool) -> (usize, usize) {
+    /// Alternations, LM steps per alternation and LM steps at most on the final Φ: a scene's
+    /// when Φ is local and refined (`scene`, a full call), else the objects'.
+    fn counts(&self, scene: bool) -> (usize, usize, usize) {
         if scene {
             (
+                self.scene_alternations,
                 self.scene_lm_steps_per_alternation,
                 self.scene_final_lm_steps,
             )
         } else {
-            (self.lm_steps_per_alternation, self.final_lm_steps)
+            (
+                self.alternations,
+                self.lm_steps_per_alternation,
+                self.final_lm_steps,
+            )
         }
     }
 }
@@ -148,12 +153,7 @@ pub(crate) fn alternate<S: Surface>(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Alternated {
     let c = &s.coarse_to_fine;
-    let alternations = if refine && fit.is_local() {
-        c.scene_alternations
-    } else {
-        c.alternations
-    };
-    let (lm_steps, _) = c.lm_steps(refine && fit.is_local());
+    let (alternations, lm_steps, _) = c.counts(refine && fit.is_local());
     let (tie, tau2) = (s.multistart.tie, s.multistart.truncation.powi(2));
     let mut lms: Vec<(usize, Lm)> = hypotheses.into_iter().enumerate().collect();
     for k in 0..alternations {
@@ -247,7 +247,7 @@ pub(crate) fn final_lm<S: Surface>(
         let kernel = kernel_of(phi, || lm.moved(source), policy, policy.kappa_end());
         lm.run(phi, source, kernel, steps)
     }
-    let (_, steps) = c.lm_steps(refined && fit.is_local());
+    let (_, _, steps) = c.counts(refined && fit.is_local());
     if c.final_lm_baked && !fit.is_local() {
         on(fit.coarse(), source, lm, steps, policy)
     } else {

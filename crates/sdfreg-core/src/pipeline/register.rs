@@ -42,7 +42,7 @@ use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
 use crate::pipeline::registration::{measure, Registration, Trace};
 use crate::pipeline::report::{InitialReport, RescueReport, Stage, StageTimes};
-use crate::pipeline::rerun::robust_rerun;
+use crate::pipeline::rerun::{robust_rerun, with_other_run};
 use crate::pipeline::robust::{outside_share, KernelPolicy, RobustMode};
 use crate::pipeline::scale::scale_starts;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
@@ -202,13 +202,17 @@ fn rescue(
     outside: impl Fn(&Registration) -> f64,
     from_scratch: impl FnOnce() -> Registration,
 ) -> Registration {
-    let given_outside = outside(&given);
+    let given_outside = given
+        .stages
+        .robust
+        .returned_outside()
+        .unwrap_or_else(|| outside(&given));
     if given_outside <= share {
         return given;
     }
     let scratch = from_scratch();
     let rescue_outside = outside(&scratch);
-    let (mut kept, other, report) = if rescue_outside < given_outside {
+    let (kept, other, report) = if rescue_outside < given_outside {
         let report = RescueReport::Kept {
             given_outside,
             rescue_outside,
@@ -221,7 +225,7 @@ fn rescue(
         };
         (given, scratch, report)
     };
-    kept.stage_times.other_run += other.stage_times.run() + other.stage_times.other_run;
+    let mut kept = with_other_run(kept, &other);
     kept.stages.rescue = report;
     kept
 }

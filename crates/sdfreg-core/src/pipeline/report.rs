@@ -163,6 +163,25 @@ pub enum RobustReport {
     },
 }
 
+impl RobustReport {
+    /// The share of the source the returned result leaves outside the target's coverage, when
+    /// the decision measured it: the least-squares result was returned (no re-run, or the
+    /// re-run rejected).
+    pub(crate) fn returned_outside(&self) -> Option<f64> {
+        match *self {
+            Self::NotNeeded {
+                least_squares_outside,
+                ..
+            }
+            | Self::RerunRejected {
+                least_squares_outside,
+                ..
+            } => Some(least_squares_outside),
+            _ => None,
+        }
+    }
+}
+
 /// Whether a given initial guess was rescued by the multi-start
 /// ([`crate::MultistartSettings::rescue`]): its result left too much of the source outside the
 /// target's coverage, and the registration ran again as if no guess had been given.

@@ -114,9 +114,10 @@ pub(crate) fn robust_rerun(
     }
 }
 
-/// `r` with the time of the `other` run, which was not returned.
-fn with_other_run(mut r: Registration, other: &Registration) -> Registration {
-    r.stage_times.other_run = other.stage_times.run();
+/// `r` with the time of the `other` registration, which was not returned (its own runs not
+/// returned included), added to its `other_run`.
+pub(crate) fn with_other_run(mut r: Registration, other: &Registration) -> Registration {
+    r.stage_times.other_run += other.stage_times.run() + other.stage_times.other_run;
     r
 }
 
