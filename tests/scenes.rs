@@ -6,7 +6,7 @@ use sdfreg_core::sim::lidar::{room_pair, street_pair};
 use sdfreg_core::{register, ModelKind, RegisterSettings, SdfModel};
 
 #[test]
-fn a_street_pair_registers_with_the_defaults_where_the_global_model_slides() {
+fn a_street_pair_registers_with_the_defaults_far_closer_than_with_the_global_model() {
     let pair = street_pair();
     let s = RegisterSettings::default();
     // The target's extent against its point spacing chooses the local model.
@@ -15,8 +15,8 @@ fn a_street_pair_registers_with_the_defaults_where_the_global_model_slides() {
     let voxel = model.voxel().unwrap();
     assert!((0.5..2.0).contains(&voxel), "voxel {voxel} m");
     let r = register(&pair.source, &pair.target, None, &s).unwrap();
-    let (rot, trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
-    assert!(rot <= 0.1 && trans <= 0.02, "{rot}° {trans} m");
+    let (rot, local_trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
+    assert!(rot <= 0.1 && local_trans <= 0.02, "{rot}° {local_trans} m");
     // Against the stored model too.
     let r = model.register(&pair.source, None, &s).unwrap();
     let (rot, trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
@@ -24,12 +24,16 @@ fn a_street_pair_registers_with_the_defaults_where_the_global_model_slides() {
         rot <= 0.1 && trans <= 0.02,
         "against the model: {rot}° {trans} m"
     );
-    // One MLP over the 143 m street smooths away what pins the slide along it.
+    // One MLP over the 143 m street smooths away what pins the slide along it (measured:
+    // 26 mm off against 1.4 mm; with the fit settings before the one-shot speed-up, 1.2 m).
     let mut global = s.clone();
     global.fit.local.kind = ModelKind::Global;
     let r = register(&pair.source, &pair.target, None, &global).unwrap();
     let (_, trans) = pose_errors(&r.t_target_source, &pair.t_target_source);
-    assert!(trans > 0.5, "the global model ends {trans} m off");
+    assert!(
+        trans > 0.01 && trans > 5.0 * local_trans,
+        "the global model ends {trans} m off, the local one {local_trans} m"
+    );
 }
 
 #[test]

@@ -30,6 +30,7 @@ pub fn partial_scans_quick() -> RegisterSettings {
 
 fn shorten(mut s: RegisterSettings) -> RegisterSettings {
     s.fit.prefit_steps = 300;
+    s.fit.model_prefit_steps = 300;
     s.coarse_to_fine.alternations = 6;
     s.fit.refine_steps = 40;
     s

@@ -72,16 +72,23 @@ pub struct Common {
     /// [default: 5].
     #[arg(long)]
     pub scene_alternations: Option<usize>,
-    /// Adam steps of the SDF pre-fit, for an object (a global Φ) [default: 500].
+    /// Adam steps of the SDF pre-fit of a full call, for an object (a global Φ) [default: 250].
     #[arg(long)]
     pub prefit_steps: Option<usize>,
+    /// Adam steps of a stored model's pre-fit (`sdfreg fit`, `align`, `eval --via-model`), for
+    /// an object (a global Φ): fitted once, registered against many times [default: 1000].
+    #[arg(long)]
+    pub model_prefit_steps: Option<usize>,
     /// The same for a scene (a local Φ, whose surface comes from the target's planes)
     /// [default: 200].
     #[arg(long)]
     pub scene_prefit_steps: Option<usize>,
-    /// Adam steps of SDF refinement per alternation [default: 40].
+    /// Adam steps of SDF refinement per alternation, for an object (a global Φ) [default: 10].
     #[arg(long)]
     pub refine_steps: Option<usize>,
+    /// The same for a scene (a local Φ; a full call only) [default: 40].
+    #[arg(long)]
+    pub scene_refine_steps: Option<usize>,
     /// When the robust (Geman–McClure) kernel is used: `auto` (least squares, redone with the
     /// kernel when the result fits fewer than --robust-below-fitness of the source points, kept
     /// if it fits 1.3 times as many), `on` (from the start: partial overlap), `off`
@@ -194,7 +201,9 @@ impl Common {
         );
         set(&mut s.fit.local.prefit_steps, self.scene_prefit_steps);
         set(&mut s.fit.refine_steps, self.refine_steps);
+        set(&mut s.fit.local.refine_steps, self.scene_refine_steps);
         set(&mut s.fit.prefit_steps, self.prefit_steps);
+        set(&mut s.fit.model_prefit_steps, self.model_prefit_steps);
         set(&mut s.max_source_points, self.max_source_points);
         set(&mut s.max_target_points, self.max_target_points);
         s.multistart.offset = self.multistart_offset.unwrap_or(s.multistart.offset);

@@ -253,10 +253,11 @@ fn cmd_fit(a: FitArgs) -> Result<()> {
     refuse_overwrite(&a.output, &[a.target.as_path()], a.force)?;
     let target = read_cloud(&a.target, &a.input, a.common.seed)?;
     let settings = a.common.settings()?;
-    let bar = progress_bar(settings.fit.prefit_steps as u64);
+    let bar = progress_bar(settings.fit.model_prefit_steps as u64);
     bar.set_message("fitting the target SDF");
     let report = |stage: Stage| {
-        if let Stage::Prefit(done, _) = stage {
+        if let Stage::Prefit(done, total) = stage {
+            bar.set_length(total as u64);
             bar.set_position(done as u64);
         }
     };

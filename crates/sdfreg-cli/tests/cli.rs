@@ -554,7 +554,7 @@ fn fit_once_then_register_mesh_and_track_against_the_model() {
     let truth = pair(d);
     let model = d.join("tgt.sdfm");
     let out = sdfreg()
-        .args(["fit", "--prefit-steps", "300", "-o"])
+        .args(["fit", "--model-prefit-steps", "300", "-o"])
         .arg(&model)
         .arg(d.join("tgt.ply"))
         .output()
@@ -565,7 +565,8 @@ fn fit_once_then_register_mesh_and_track_against_the_model() {
         err.contains("fitted 800 target points") && err.contains("|Φ| on them"),
         "{err}"
     );
-    // The model replaces the target cloud; with --refine it gives the cloud's own numbers.
+    // The model replaces the target cloud; with --refine it gives the cloud's own numbers
+    // (the model's pre-fit as long as the cloud call's).
     let against = |extra: &[&str]| {
         let out = sdfreg()
             .arg("register")

@@ -230,7 +230,9 @@ settings_class! {
     /// The self-supervised fit of Φ to the target (Adam; lengths normalised).
     ///
     /// Args:
-    ///     prefit_steps: Adam steps before registration starts.
+    ///     prefit_steps: Adam steps before registration starts (a full call).
+    ///     model_prefit_steps: Adam steps of a stored model's pre-fit (:func:`fit`; a global
+    ///         Φ, fitted once and registered against many times).
     ///     prefit_lr: Learning rate of the pre-fit.
     ///     refine_steps: Adam steps per coarse-to-fine alternation.
     ///     refine_lr: Learning rate of the alternations.
@@ -246,14 +248,15 @@ settings_class! {
     ///     max_source_queries: Moved-source queries kept at most (oldest dropped).
     ///     local: The local part of Φ, for scenes (:class:`LocalSettings`); None: its defaults.
     PyFitSettings => FitSettings as "FitSettings", "fit" {
-        prefit_steps: i64 = 500,
+        prefit_steps: i64 = 250,
+        model_prefit_steps: i64 = 1000,
         prefit_lr: f64 = 0.002,
-        refine_steps: i64 = 40,
+        refine_steps: i64 = 10,
         refine_lr: f64 = 0.001,
-        batch_queries: i64 = 1024,
-        refine_batch_queries: i64 = 512,
-        batch_source: i64 = 512,
-        batch_surface: i64 = 512,
+        batch_queries: i64 = 256,
+        refine_batch_queries: i64 = 128,
+        batch_source: i64 = 128,
+        batch_surface: i64 = 128,
         query_pool: i64 = 16384,
         sigma_neighbour: i64 = 50,
         sigma_sample: i64 = 1024,
@@ -288,6 +291,8 @@ settings_class! {
     ///         plane of the target points about it) and not trained; False: trained by Adam.
     ///     prefit_steps: Adam steps of the pre-fit for a local Φ (in place of
     ///         ``FitSettings.prefit_steps``).
+    ///     refine_steps: Adam steps of refinement per alternation for a local Φ (in place of
+    ///         ``FitSettings.refine_steps``).
     ///     network_batch_divisor: With ``plane_fit``, the network's Adam batches
     ///         (``FitSettings``' query, source and surface batches) are divided by this (the
     ///         network only gives the far field).
@@ -308,7 +313,8 @@ settings_class! {
         lr_scale: f64 = 1.0,
         plane_fit: bool = true,
         prefit_steps: i64 = 200,
-        network_batch_divisor: i64 = 4,
+        refine_steps: i64 = 40,
+        network_batch_divisor: i64 = 1,
         min_voxel_spacings: f64 = 0.5,
         max_memory_mib: f64 = 1024.0,
     }
@@ -332,6 +338,8 @@ settings_class! {
     ///     rescue: With ``init`` given and its result still leaving more than the robust mode's
     ///         ``outside_share`` of the source outside the target's coverage, run again from the
     ///         multi-start and return that when it leaves less outside.
+    ///     grid_cells: While Φ is being fitted (a full call against an object), the starts'
+    ///         first round reads Φ baked into a grid of this many cells a side; 0: Φ itself.
     PyMultistartSettings => MultistartSettings as "MultistartSettings", "multistart" {
         enabled: bool = true,
         offset: f64 = 0.1,
@@ -345,6 +353,7 @@ settings_class! {
         distinct_translation: f64 = 0.02,
         hypotheses: i64 = 3,
         rescue: bool = true,
+        grid_cells: i64 = 32,
     }
 }
 

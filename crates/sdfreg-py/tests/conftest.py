@@ -55,7 +55,7 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 # Settings that keep a registration short where accuracy is not what a test is about.
 QUICK = dict(
-    fit=sdfreg.FitSettings(prefit_steps=150, refine_steps=20),
+    fit=sdfreg.FitSettings(prefit_steps=150, model_prefit_steps=150, refine_steps=20),
     coarse_to_fine=sdfreg.CoarseToFineSettings(alternations=3, final_lm_steps=5),
 )
 

@@ -12,7 +12,7 @@ import pytest
 import sdfreg
 from conftest import QUICK, blob, paper_pair, pose_errors
 
-FIT = sdfreg.FitSettings(prefit_steps=150, refine_steps=20)
+FIT = sdfreg.FitSettings(prefit_steps=150, model_prefit_steps=150, refine_steps=20)
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-//! Φ baked into a grid: the multi-start's field against a stored model or a mesh.
+//! Φ baked into a grid: the multi-start's field against a stored model or a mesh, and in a full
+//! call against an object (a coarser grid, [`crate::MultistartSettings::grid_cells`]).
 //!
 //! The multi-start refines 168 starts by a few LM steps each, and against a stored model (Φ
 //! frozen) that is half the time of a registration, nearly all of it evaluating the MLP (against

@@ -116,15 +116,21 @@ pub struct LocalSettings {
     /// Default 200 (see [`crate::CoarseToFineSettings::scene_alternations`] for what it was
     /// measured with).
     pub prefit_steps: usize,
+    /// Adam steps of refinement per coarse-to-fine alternation when Φ is local, in place of
+    /// [`FitSettings::refine_steps`](crate::FitSettings::refine_steps) (an object's 10). Default
+    /// 40, what the scenes' far starts were measured with
+    /// ([`crate::CoarseToFineSettings::scene_lm_steps_per_alternation`]); model files written
+    /// before this setting read 40, the refinement they had.
+    pub refine_steps: usize,
     /// With [`Self::plane_fit`], the network's Adam batches
     /// ([`FitSettings`](crate::FitSettings)' `batch_queries`, `refine_batch_queries`,
-    /// `batch_source` and `batch_surface`) are divided by this: the planes give the surface,
-    /// the network only the far field. Default 4; 1 keeps the batches (and is what a stored
-    /// model written before this setting reads as). Measured on the real LiDAR pairs (the
-    /// outdoor pair and five KITTI steps) with the scene's LM steps
-    /// ([`crate::CoarseToFineSettings::scene_lm_steps_per_alternation`]): a full call from the
-    /// identity 0.64 s → 0.40 s (median), the same answers to 0.001°, and from 96 starts 3 m and
-    /// 20° off 81 landed against 77 with 1 and 76 with 2.
+    /// `batch_source` and `batch_surface`) are divided by this. Default 1: those batches
+    /// (256, 128, 128, 128) are the quarter of the former ones (1024, 512, 512, 512) a scene
+    /// was measured with (divisor 4 of those: on the real LiDAR pairs, a full call from the
+    /// identity 0.64 s → 0.40 s, the same answers to 0.001°, and from 96 starts 3 m and 20°
+    /// off 81 landed against 77 whole), so a scene's batches are the same as before; a stored
+    /// model written before this setting, with the former batches, reads 1 too, and model
+    /// files written with 4 keep it.
     #[serde(default = "one")]
     pub network_batch_divisor: usize,
     /// A voxel below this many target point spacings is refused (each point would get voxels
@@ -157,7 +163,8 @@ impl Default for LocalSettings {
             lr_scale: 1.0,
             plane_fit: true,
             prefit_steps: 200,
-            network_batch_divisor: 4,
+            refine_steps: 40,
+            network_batch_divisor: 1,
             min_voxel_spacings: 0.5,
             max_memory_mib: 1024.0,
         }

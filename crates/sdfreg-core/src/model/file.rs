@@ -363,7 +363,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
         let target = crate::sim::shapes::blob(600, &mut rng);
         let mut s = RegisterSettings::default();
-        s.fit.prefit_steps = 100;
+        s.fit.model_prefit_steps = 100;
         SdfModel::fit(&target, &s).unwrap()
     }
 
@@ -374,7 +374,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let target = crate::sim::shapes::blob(4000, &mut rng);
         let mut s = RegisterSettings::default();
-        s.fit.prefit_steps = 20;
+        s.fit.model_prefit_steps = 20;
         s.fit.local.kind = crate::ModelKind::Global;
         let model = SdfModel::fit(&target, &s).unwrap();
         let bytes = model.to_bytes();

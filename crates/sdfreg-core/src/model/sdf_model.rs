@@ -68,7 +68,8 @@ pub struct SdfModel {
 }
 
 impl SdfModel {
-    /// Fits Φ to `target` (user units and frame) with `settings.mlp`, `settings.fit`,
+    /// Fits Φ to `target` (user units and frame) with `settings.mlp`, `settings.fit` (its
+    /// `model_prefit_steps` for a global Φ, `local.prefit_steps` for a local one),
     /// `settings.max_target_points` and `settings.seed`; the other settings are the
     /// registration's.
     pub fn fit(target: &[Point3<f64>], settings: &RegisterSettings) -> Result<Self, Error> {
@@ -85,9 +86,10 @@ impl SdfModel {
         let target = usable(target, Role::Target, MIN_POINTS)?;
         crate::base::pool::in_pool(settings.threads, || {
             // The registration's random stream, as `register()` draws it, so that a refined
-            // registration against the model keeps `register()`'s numbers.
+            // registration against the model keeps `register()`'s numbers (with the same
+            // pre-fit steps).
             let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-            let (norm, fitter) = prefit(&target, settings, &mut rng, progress)?;
+            let (norm, fitter) = prefit(&target, settings, true, &mut rng, progress)?;
             let model = Self {
                 norm,
                 fitter,
@@ -164,7 +166,9 @@ impl SdfModel {
 
     /// [`SdfModel::register`] refining a private copy of Φ in the coarse-to-fine loop with the
     /// moved source among its queries (paper eq. 18-1), as [`crate::register()`] does; the
-    /// model is not changed.
+    /// model is not changed. With [`crate::FitSettings::model_prefit_steps`] equal to
+    /// `prefit_steps` (the model's pre-fit and a full call's the same), its numbers are
+    /// [`crate::register()`]'s.
     pub fn register_refined(
         &self,
         source: &[Point3<f64>],
@@ -350,6 +354,7 @@ mod tests {
     fn quick() -> RegisterSettings {
         let mut s = RegisterSettings::default();
         s.fit.prefit_steps = 300;
+        s.fit.model_prefit_steps = 300;
         s
     }
 

@@ -3,7 +3,8 @@
 //! [`CoarseToFineSettings::alternations`] times: every hypothesis's moved source joins Φ's query
 //! set (queries carry their true nearest target point, so extra ones only teach Φ more of the far
 //! field; with a robust kernel, points at `|Φ| ≥ c`, outside the target's coverage, are left
-//! out), Φ is refined for [`crate::FitSettings::refine_steps`] Adam steps, and each hypothesis
+//! out), Φ is refined for [`crate::FitSettings::refine_steps`] Adam steps
+//! ([`crate::LocalSettings::refine_steps`] for a scene's local Φ), and each hypothesis
 //! takes [`CoarseToFineSettings::lm_steps_per_alternation`] LM steps
 //! ([`CoarseToFineSettings::scene_lm_steps_per_alternation`] in a scene's full call). Halfway,
 //! hypotheses that fit clearly worse than the best are dropped; at the end the best-fitting one
@@ -184,7 +185,12 @@ pub(crate) fn alternate<S: Surface>(
             kernels.push(kernel);
         }
         if refine {
-            fit.to_mut().refine(s.fit.refine_steps, s.fit.refine_lr);
+            let steps = if fit.is_local() {
+                s.fit.local.refine_steps
+            } else {
+                s.fit.refine_steps
+            };
+            fit.to_mut().refine(steps, s.fit.refine_lr);
         }
         for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
             lm.run(fit.phi(), source, kernel, lm_steps);

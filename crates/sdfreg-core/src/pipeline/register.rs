@@ -35,6 +35,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
+use crate::field::baked::{BakedGrid, BAKED_HALF_EXTENT};
 use crate::field::Field;
 use crate::geometry::cloud::{scaled_f32, subsample, usable, Normalization};
 use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
@@ -47,7 +48,7 @@ use crate::pipeline::robust::{outside_share, KernelPolicy, RobustMode};
 use crate::pipeline::scale::scale_starts;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::pipeline::shift_search::search;
-use crate::pipeline::surface::Surface;
+use crate::pipeline::surface::{Surface, WithGrid};
 use crate::pipeline::target::prefit;
 use crate::solve::lm::{Lm, ScaleDof};
 
@@ -78,7 +79,7 @@ pub fn register_with_progress(
         let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
         let source = subsample(&source, settings.max_source_points, &mut rng);
         let prefit_start = Instant::now();
-        let (norm, fitter) = prefit(&target, settings, &mut rng, progress)?;
+        let (norm, fitter) = prefit(&target, settings, false, &mut rng, progress)?;
         let prefit_time = prefit_start.elapsed();
         let mut r = register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)?;
         r.stage_times.prefit = prefit_time;
@@ -250,7 +251,19 @@ fn run<S: Surface>(
         clock = Instant::now();
     };
     let mut fit = Cow::Borrowed(surface);
-    let (hypotheses, initial) = initial_pose(&*fit, unit, init, s, policy, rng, progress);
+    // The multi-start on a Φ being fitted reads it baked into a coarse grid
+    // (`MultistartSettings::grid_cells`); a stored model's surface has its own grid already.
+    let grid = (refine && init.is_none() && s.multistart.enabled && !surface.is_local())
+        .then_some(s.multistart.grid_cells)
+        .filter(|&cells| cells > 0)
+        .map(|cells| BakedGrid::bake(surface.phi(), cells, BAKED_HALF_EXTENT));
+    let (hypotheses, initial) = match &grid {
+        Some(grid) => {
+            let baked = WithGrid::new(surface, grid);
+            initial_pose(&baked, unit, init, s, policy, rng, progress)
+        }
+        None => initial_pose(surface, unit, init, s, policy, rng, progress),
+    };
     let starts: Vec<Isometry3<f64>> = hypotheses.iter().map(|lm| lm.pose).collect();
     lap(&mut times.initial);
     let Alternated {

@@ -15,11 +15,13 @@ pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
 /// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps
-/// (`s.fit.local.prefit_steps` for a local Φ, whose corrections are then set from planes),
+/// (`s.fit.model_prefit_steps` for a `stored` model; `s.fit.local.prefit_steps` for a local Φ,
+/// whose corrections are then set from planes),
 /// reporting [`Stage::Prefit`] to `progress`.
 pub(crate) fn prefit(
     target: &[Point3<f64>],
     s: &RegisterSettings,
+    stored: bool,
     rng: &mut ChaCha8Rng,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<(Normalization, SdfFitter), Error> {
@@ -33,6 +35,8 @@ pub(crate) fn prefit(
     let mut fitter = SdfFitter::try_new(unit, &s.mlp, &fit, s.seed ^ FIT_SEED_SALT)?;
     let total = if fitter.field().grid().is_some() {
         s.fit.local.prefit_steps
+    } else if stored {
+        s.fit.model_prefit_steps
     } else {
         s.fit.prefit_steps
     };

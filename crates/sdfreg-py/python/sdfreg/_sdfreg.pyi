@@ -84,14 +84,15 @@ class FitSettings:
     def __new__(
         cls,
         *,
-        prefit_steps: int = 500,
+        prefit_steps: int = 250,
+        model_prefit_steps: int = 1000,
         prefit_lr: float = 0.002,
-        refine_steps: int = 40,
+        refine_steps: int = 10,
         refine_lr: float = 0.001,
-        batch_queries: int = 1024,
-        refine_batch_queries: int = 512,
-        batch_source: int = 512,
-        batch_surface: int = 512,
+        batch_queries: int = 256,
+        refine_batch_queries: int = 128,
+        batch_source: int = 128,
+        batch_surface: int = 128,
         query_pool: int = 16384,
         sigma_neighbour: int = 50,
         sigma_sample: int = 1024,
@@ -102,6 +103,8 @@ class FitSettings:
     ) -> FitSettings: ...
     @property
     def prefit_steps(self) -> int: ...
+    @property
+    def model_prefit_steps(self) -> int: ...
     @property
     def prefit_lr(self) -> float: ...
     @property
@@ -152,7 +155,8 @@ class LocalSettings:
         lr_scale: float = 1.0,
         plane_fit: bool = True,
         prefit_steps: int = 200,
-        network_batch_divisor: int = 4,
+        refine_steps: int = 40,
+        network_batch_divisor: int = 1,
         min_voxel_spacings: float = 0.5,
         max_memory_mib: float = 1024.0,
     ) -> LocalSettings: ...
@@ -183,6 +187,8 @@ class LocalSettings:
     @property
     def prefit_steps(self) -> int: ...
     @property
+    def refine_steps(self) -> int: ...
+    @property
     def network_batch_divisor(self) -> int: ...
     @property
     def min_voxel_spacings(self) -> float: ...
@@ -208,6 +214,7 @@ class MultistartSettings:
         distinct_translation: float = 0.02,
         hypotheses: int = 3,
         rescue: bool = True,
+        grid_cells: int = 32,
     ) -> MultistartSettings: ...
     @property
     def enabled(self) -> bool: ...
@@ -233,6 +240,8 @@ class MultistartSettings:
     def hypotheses(self) -> int: ...
     @property
     def rescue(self) -> bool: ...
+    @property
+    def grid_cells(self) -> int: ...
 
 @final
 class CoarseToFineSettings:
