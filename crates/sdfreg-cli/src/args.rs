@@ -76,7 +76,7 @@ pub struct Common {
     #[arg(long)]
     pub prefit_steps: Option<usize>,
     /// Adam steps of a stored model's pre-fit (`sdfreg fit`, `align`, `eval --via-model`), for
-    /// an object (a global Φ): fitted once, registered against many times [default: 1000].
+    /// an object (a global Φ): fitted once, registered against many times [default: 2000].
     #[arg(long)]
     pub model_prefit_steps: Option<usize>,
     /// The same for a scene (a local Φ, whose surface comes from the target's planes)

@@ -49,7 +49,14 @@ fn parse_matrix(text: &str) -> Matrix4<f64> {
     Matrix4::from_row_slice(&v)
 }
 
-const QUICK: [&str; 4] = ["--prefit-steps", "300", "--alternations", "5"];
+const QUICK: [&str; 6] = [
+    "--prefit-steps",
+    "300",
+    "--model-prefit-steps",
+    "300",
+    "--alternations",
+    "5",
+];
 
 #[test]
 fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {

@@ -249,7 +249,7 @@ settings_class! {
     ///     local: The local part of Φ, for scenes (:class:`LocalSettings`); None: its defaults.
     PyFitSettings => FitSettings as "FitSettings", "fit" {
         prefit_steps: i64 = 250,
-        model_prefit_steps: i64 = 1000,
+        model_prefit_steps: i64 = 2000,
         prefit_lr: f64 = 0.002,
         refine_steps: i64 = 10,
         refine_lr: f64 = 0.001,

@@ -10,11 +10,12 @@ pub struct FitSettings {
     pub prefit_steps: usize,
     /// Adam steps of a stored model's pre-fit ([`crate::SdfModel::fit`]; a global Φ), in place
     /// of [`Self::prefit_steps`]: a model is fitted once and registered against many times,
-    /// with Φ frozen and never refined, so it takes a longer fit. Default 1000 (0.2 s for a
-    /// 1024-point object, 2-core AVX-512). Measured on the procedural room loop of five scans
-    /// (`align`, whose pairs run through stored models): with 250 steps the worst pose ended
-    /// 0.23° / 60 mm off, with 1000 0.23° / 7 mm; three scans started 5 cm / 1° off, 1.27° /
-    /// 41 mm and 0.14° / 7 mm. Model files written before this setting read 500, the pre-fit
+    /// with Φ frozen and never refined, so it takes a longer fit. Default 2000: the work of the
+    /// former pre-fit (500 steps of four times the batches), and its accuracy: tracking the
+    /// 200 frames of `benches/track.py`, mean error 0.1466° (1000 steps: 0.157°;
+    /// the former model 0.1465°). On the procedural room loop of five scans (`align`, whose
+    /// pairs run through stored models), with 250 steps the worst pose ended 0.23° / 60 mm off,
+    /// with 1000 0.23° / 7 mm. Model files written before this setting read 500, the pre-fit
     /// they had.
     #[serde(default = "five_hundred")]
     pub model_prefit_steps: usize,
@@ -90,7 +91,7 @@ impl Default for FitSettings {
     fn default() -> Self {
         Self {
             prefit_steps: 250,
-            model_prefit_steps: 1000,
+            model_prefit_steps: 2000,
             prefit_lr: 2e-3,
             refine_steps: 10,
             refine_lr: 1e-3,

@@ -85,7 +85,7 @@ class FitSettings:
         cls,
         *,
         prefit_steps: int = 250,
-        model_prefit_steps: int = 1000,
+        model_prefit_steps: int = 2000,
         prefit_lr: float = 0.002,
         refine_steps: int = 10,
         refine_lr: float = 0.001,
