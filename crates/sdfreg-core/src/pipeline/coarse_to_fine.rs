@@ -135,8 +135,11 @@ pub(crate) struct Schedule<'a> {
     pub coarse_to_fine: &'a CoarseToFineSettings,
     /// The tie margin and truncation of the halfway drop and the final pick.
     pub multistart: &'a MultistartSettings,
-    /// Φ's refinement steps and learning rate.
+    /// Φ's refinement learning rate, and a scene's refinement steps.
     pub fit: &'a FitSettings,
+    /// Adam steps of Φ's refinement per alternation for an object: [`FitSettings::refine_steps`],
+    /// or with a scale [`crate::ScaleSettings::refine_steps`].
+    pub refine_steps: usize,
 }
 
 /// The alternations of Φ refinement and LM steps over every hypothesis (unit frame), from
@@ -188,7 +191,7 @@ pub(crate) fn alternate<S: Surface>(
             let steps = if fit.is_local() {
                 s.fit.local.refine_steps
             } else {
-                s.fit.refine_steps
+                s.refine_steps
             };
             fit.to_mut().refine(steps, s.fit.refine_lr);
         }

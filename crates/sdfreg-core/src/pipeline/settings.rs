@@ -189,6 +189,11 @@ impl RegisterSettings {
             coarse_to_fine: &self.coarse_to_fine,
             multistart: &self.multistart,
             fit: &self.fit,
+            refine_steps: if self.scale.enabled {
+                self.scale.refine_steps
+            } else {
+                self.fit.refine_steps
+            },
         }
     }
 

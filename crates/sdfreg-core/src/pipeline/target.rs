@@ -15,7 +15,8 @@ pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
 /// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps
-/// (`s.fit.model_prefit_steps` for a `stored` model; `s.fit.local.prefit_steps` for a local Φ,
+/// (`s.fit.model_prefit_steps` for a `stored` model, `s.scale.prefit_steps` with a scale;
+/// `s.fit.local.prefit_steps` for a local Φ,
 /// whose corrections are then set from planes),
 /// reporting [`Stage::Prefit`] to `progress`.
 pub(crate) fn prefit(
@@ -37,6 +38,8 @@ pub(crate) fn prefit(
         s.fit.local.prefit_steps
     } else if stored {
         s.fit.model_prefit_steps
+    } else if s.scale.enabled {
+        s.scale.prefit_steps
     } else {
         s.fit.prefit_steps
     };
