@@ -19,7 +19,6 @@ use nalgebra::{Isometry3, Point3};
 
 use crate::base::error::Error;
 use crate::field::Field;
-use crate::fit::settings::FitSettings;
 use crate::geometry::cloud::transformed_f32;
 use crate::pipeline::multistart::{least_motion, solver_score, MultistartSettings};
 use crate::pipeline::report::Stage;
@@ -31,7 +30,7 @@ use crate::solve::lm::{Lm, StopReason};
 /// The coarse-to-fine schedule (paper eq. 18-1) and the final LM on the frozen Φ.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CoarseToFineSettings {
-    /// Alternations of Φ refinement ([`FitSettings::refine_steps`] Adam steps) and LM steps.
+    /// Alternations of Φ refinement ([`crate::FitSettings::refine_steps`] Adam steps) and LM steps.
     /// Default 10.
     pub alternations: usize,
     /// Alternations when Φ is local (a scene, [`crate::ModelKind::Local`]) and refined (a full
@@ -135,10 +134,9 @@ pub(crate) struct Schedule<'a> {
     pub coarse_to_fine: &'a CoarseToFineSettings,
     /// The tie margin and truncation of the halfway drop and the final pick.
     pub multistart: &'a MultistartSettings,
-    /// Φ's refinement learning rate, and a scene's refinement steps.
-    pub fit: &'a FitSettings,
-    /// Adam steps of Φ's refinement per alternation for an object: [`FitSettings::refine_steps`],
-    /// or with a scale [`crate::ScaleSettings::refine_steps`].
+    /// Φ's refinement learning rate ([`crate::FitSettings::refine_lr`]).
+    pub refine_lr: f32,
+    /// Adam steps of Φ's refinement per alternation (`RegisterSettings::refine_steps`).
     pub refine_steps: usize,
 }
 
@@ -188,12 +186,7 @@ pub(crate) fn alternate<S: Surface>(
             kernels.push(kernel);
         }
         if refine {
-            let steps = if fit.is_local() {
-                s.fit.local.refine_steps
-            } else {
-                s.refine_steps
-            };
-            fit.to_mut().refine(steps, s.fit.refine_lr);
+            fit.to_mut().refine(s.refine_steps, s.refine_lr);
         }
         for ((_, lm), &kernel) in lms.iter_mut().zip(&kernels) {
             lm.run(fit.phi(), source, kernel, lm_steps);

@@ -27,6 +27,7 @@
 //! each scale start, and stages 4–7 carry the scale as a seventh unknown.
 
 use std::borrow::Cow;
+use std::sync::OnceLock;
 use std::time::Instant;
 
 use nalgebra::{Isometry3, Point3};
@@ -153,9 +154,16 @@ fn register_drawn<S: Surface>(
 ) -> Result<Registration, Error> {
     let start = Instant::now();
     let unit = in_unit_frame(norm, source)?;
+    // Baked at most once: the robust re-run and the rescue's run start from the same Φ.
+    let grid = OnceLock::new();
     let run_from = |init: Option<&Isometry3<f64>>, s: &RegisterSettings, policy| {
         let mut rng = rng.clone();
-        run(surface, &unit, &mut rng, init, s, policy, refine, progress)
+        let runs = Runs {
+            surface,
+            grid: &grid,
+            refine,
+        };
+        run(&runs, &unit, &mut rng, init, s, policy, progress)
     };
     let outside = |r: &Registration| {
         let moved = if s.scale.enabled {
@@ -231,19 +239,29 @@ fn rescue(
     kept
 }
 
-/// One registration run with the kernel `policy` against `surface` (a private copy of Φ refined
-/// when `refine`): stages 3–9 of the module docs, less the robust re-run (which calls it again).
-#[allow(clippy::too_many_arguments)]
+/// What every run of one registration shares.
+struct Runs<'a, S> {
+    /// The target (a private copy of its Φ refined by each run when `refine`).
+    surface: &'a S,
+    /// Φ as the target came, baked into the multi-start's grid by the first run that reads it
+    /// ([`crate::MultistartSettings::grid_cells`]; the re-runs change neither it nor Φ).
+    grid: &'a OnceLock<BakedGrid>,
+    /// Whether Φ is refined (a full call, [`crate::SdfModel::register_refined`]).
+    refine: bool,
+}
+
+/// One registration run with the kernel `policy` against `runs.surface`: stages 3–9 of the
+/// module docs, less the robust re-run (which calls it again).
 fn run<S: Surface>(
-    surface: &S,
+    runs: &Runs<'_, S>,
     unit: &Unit,
     rng: &mut ChaCha8Rng,
     init: Option<&Isometry3<f64>>,
     s: &RegisterSettings,
     policy: KernelPolicy,
-    refine: bool,
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Registration {
+    let (surface, refine) = (runs.surface, runs.refine);
     let mut times = StageTimes::default();
     let mut clock = Instant::now();
     let mut lap = |time: &mut std::time::Duration| {
@@ -256,8 +274,11 @@ fn run<S: Surface>(
     let grid = (refine && init.is_none() && s.multistart.enabled && !surface.is_local())
         .then_some(s.multistart.grid_cells)
         .filter(|&cells| cells > 0)
-        .map(|cells| BakedGrid::bake(surface.phi(), cells, BAKED_HALF_EXTENT));
-    let (hypotheses, initial) = match &grid {
+        .map(|cells| {
+            runs.grid
+                .get_or_init(|| BakedGrid::bake(surface.phi(), cells, BAKED_HALF_EXTENT))
+        });
+    let (hypotheses, initial) = match grid {
         Some(grid) => {
             let baked = WithGrid::new(surface, grid);
             initial_pose(&baked, unit, init, s, policy, rng, progress)
@@ -274,7 +295,7 @@ fn run<S: Surface>(
         &mut fit,
         &unit.source,
         hypotheses,
-        &s.schedule(),
+        &s.schedule(surface.is_local()),
         policy,
         refine,
         progress,

@@ -183,17 +183,42 @@ impl RegisterSettings {
     /// The preset names [`Self::preset`] knows.
     pub const PRESETS: [&'static str; 4] = ["default", "scans", "views", "tracking"];
 
-    /// The groups the coarse-to-fine alternations read.
-    pub(crate) fn schedule(&self) -> Schedule<'_> {
+    /// Adam steps of Φ's pre-fit — the whole policy in one place: a `local` Φ (a scene's)
+    /// [`crate::LocalSettings::prefit_steps`], a `stored` model
+    /// [`FitSettings::model_prefit_steps`], with a scale [`ScaleSettings::prefit_steps`], else
+    /// (a full call against an object) [`FitSettings::prefit_steps`].
+    pub(crate) fn prefit_steps(&self, local: bool, stored: bool) -> usize {
+        if local {
+            self.fit.local.prefit_steps
+        } else if stored {
+            self.fit.model_prefit_steps
+        } else if self.scale.enabled {
+            self.scale.prefit_steps
+        } else {
+            self.fit.prefit_steps
+        }
+    }
+
+    /// Adam steps of Φ's refinement per alternation: a `local` Φ (a scene's)
+    /// [`crate::LocalSettings::refine_steps`], with a scale [`ScaleSettings::refine_steps`], else
+    /// [`FitSettings::refine_steps`].
+    pub(crate) fn refine_steps(&self, local: bool) -> usize {
+        if local {
+            self.fit.local.refine_steps
+        } else if self.scale.enabled {
+            self.scale.refine_steps
+        } else {
+            self.fit.refine_steps
+        }
+    }
+
+    /// The groups the coarse-to-fine alternations read, for a `local` Φ or not.
+    pub(crate) fn schedule(&self, local: bool) -> Schedule<'_> {
         Schedule {
             coarse_to_fine: &self.coarse_to_fine,
             multistart: &self.multistart,
-            fit: &self.fit,
-            refine_steps: if self.scale.enabled {
-                self.scale.refine_steps
-            } else {
-                self.fit.refine_steps
-            },
+            refine_lr: self.fit.refine_lr,
+            refine_steps: self.refine_steps(local),
         }
     }
 

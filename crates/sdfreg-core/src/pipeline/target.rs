@@ -14,11 +14,9 @@ use crate::pipeline::settings::RegisterSettings;
 pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
-/// `rng` (the registration's stream) and pre-fits Φ for `s.fit.prefit_steps` Adam steps
-/// (`s.fit.model_prefit_steps` for a `stored` model, `s.scale.prefit_steps` with a scale;
-/// `s.fit.local.prefit_steps` for a local Φ,
-/// whose corrections are then set from planes),
-/// reporting [`Stage::Prefit`] to `progress`.
+/// `rng` (the registration's stream) and pre-fits Φ for `RegisterSettings::prefit_steps` Adam
+/// steps (a local Φ's corrections are then set from planes), reporting [`Stage::Prefit`] to
+/// `progress`; `stored` for a stored model's fit.
 pub(crate) fn prefit(
     target: &[Point3<f64>],
     s: &RegisterSettings,
@@ -34,15 +32,7 @@ pub(crate) fn prefit(
     let mut fit = s.fit.clone();
     fit.local = fit.local.for_extent(norm.scale);
     let mut fitter = SdfFitter::try_new(unit, &s.mlp, &fit, s.seed ^ FIT_SEED_SALT)?;
-    let total = if fitter.field().grid().is_some() {
-        s.fit.local.prefit_steps
-    } else if stored {
-        s.fit.model_prefit_steps
-    } else if s.scale.enabled {
-        s.scale.prefit_steps
-    } else {
-        s.fit.prefit_steps
-    };
+    let total = s.prefit_steps(fitter.field().grid().is_some(), stored);
     let chunk = 50.max(total / 10);
     let mut done = 0;
     while done < total {
