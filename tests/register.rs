@@ -96,10 +96,22 @@ fn the_robust_kernel_ignores_source_points_outside_the_target() {
     // The target lacks the part of the blob with x > 0.3, which the source still has (about a
     // sixth of it); the overlap must decide the pose.
     let (source, target, m) = partial_view(0.3);
-    let plain = register(&source, &target, None, &least_squares()).unwrap();
+    let mut sdf_only = least_squares();
+    sdf_only.polish.iterations = 0;
+    let plain = register(&source, &target, None, &sdf_only).unwrap();
     let (rot_l2, _) = pose_errors(&plain.t_target_source, &m.inverse());
-    assert!(rot_l2 > 3.0, "least squares is dragged off: {rot_l2}°");
+    assert!(rot_l2 > 3.0, "least squares on Φ is dragged off: {rot_l2}°");
     assert_eq!(plain.stages.robust, RobustReport::Off);
+    // The polish lays that pose back onto the overlap: it moves the source farther than
+    // `polish.max_shift`, and is kept because it lays clearly more of it onto the target.
+    let polished = register(&source, &target, None, &least_squares()).unwrap();
+    let (rot_p, tr_p) = pose_errors(&polished.t_target_source, &m.inverse());
+    assert!(rot_p < 1.0 && tr_p < 0.01, "polished: {rot_p}°, {tr_p}");
+    let report = polished.stages.polish;
+    assert!(
+        report.result != PolishResult::Undone && report.change.rotation_deg > 2.0,
+        "{report:?}"
+    );
     let r = register(&source, &target, None, &partial_scans_quick()).unwrap();
     assert!(r.robust && r.stages.robust == RobustReport::FromStart);
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());

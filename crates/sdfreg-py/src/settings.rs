@@ -417,6 +417,8 @@ settings_class! {
     ///     target_planes: An object's planes at the target's points (kept by a model), not at the source's.
     ///     patience: An object's pass also ends when its step has not fallen below its smallest
     ///         for this many iterations; 0 never (the ``"views"`` preset: 10).
+    ///     scene_tolerance_spacings: When Φ is local (a scene), a pass has converged when its
+    ///         step is below this many target point spacings.
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -430,6 +432,7 @@ settings_class! {
         snap: bool = true,
         target_planes: bool = false,
         patience: i64 = 0,
+        scene_tolerance_spacings: f64 = 0.1,
     }
 }
 

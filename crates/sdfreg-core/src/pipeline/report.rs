@@ -96,7 +96,8 @@ pub enum PolishResult {
     Applied,
     /// The source lay on the target's own points and was snapped onto them.
     Snapped,
-    /// It moved the source further than `polish.max_shift`; the SDF's pose was kept.
+    /// It moved the source further than `polish.max_shift` without laying clearly more of it
+    /// onto the target's points; the SDF's pose was kept.
     Undone,
 }
 

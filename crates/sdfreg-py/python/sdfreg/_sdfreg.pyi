@@ -356,6 +356,7 @@ class PolishSettings:
         snap: bool = True,
         target_planes: bool = False,
         patience: int = 0,
+        scene_tolerance_spacings: float = 0.1,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -381,6 +382,8 @@ class PolishSettings:
     def target_planes(self) -> bool: ...
     @property
     def patience(self) -> int: ...
+    @property
+    def scene_tolerance_spacings(self) -> float: ...
 
 @final
 class ShiftSearchSettings:
