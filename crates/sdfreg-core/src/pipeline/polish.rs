@@ -87,8 +87,8 @@ pub struct PolishSettings {
     /// Source points farther than this from every target point are left out. Default 0.05.
     pub max_distance: f64,
     /// The polish is undone if it moves the source points by more than this (RMS), unless it
-    /// lays clearly more of them onto the target's points (share within one target spacing
-    /// larger by [`FAR_POLISH_GAIN`]). Default 0.05.
+    /// lays clearly more of them onto the target's points (the share within one target spacing
+    /// larger by 0.1). Default 0.05.
     pub max_shift: f64,
     /// After converging with [`Self::max_distance`], the local planes run again with only the
     /// source points within this many target point spacings (median nearest-neighbour
