@@ -134,15 +134,15 @@ pub struct PolishSettings {
     /// When Φ is local (a scene), a pass has converged when its step is below this many
     /// target point spacings, in rotation (radians, against the normalised extent 1) and in
     /// translation (or [`Self::tolerance`] when that is larger). Default 0.1: the steps shrink
-    /// geometrically to about a tenth of a spacing and then creep a few hundredths of a
-    /// spacing per iteration. Measured with `benches/lidar_compare.py --real --far-starts`:
-    /// with 0.01 the outdoor pair's stored-model registration ran 61 polish iterations
-    /// (1.1–1.4 times small_gicp's time), with 0.1 16 (0.46 times); every pair's answer from
-    /// the identity moved by at most 0.01° / 0.6 mm, and the far starts landed as before
-    /// (full call 56 of 56, stored model 54 of 56). For the outdoor pair one spacing is
-    /// 13 mm, so 0.1 is 1.3 mm and 1.5·10⁻⁵ rad; small_gicp stops at 1 mm and 0.1°.
-    /// Objects polished against planes at their target points ([`Self::target_planes`])
-    /// keep 0.01.
+    /// geometrically to about a tenth of a spacing, then creep 0.05–0.4 spacing an iteration
+    /// as nearest points change, for 15–25 iterations. Measured with
+    /// `benches/lidar_compare.py --real --far-starts`: with 0.01 the outdoor pair's
+    /// stored-model registration ran 61 polish iterations (1.1–1.4 times small_gicp's time),
+    /// with 0.1 16 (0.46 times); every pair's answer from the identity stayed as near its
+    /// reference to 0.01° / 1.7 mm, and the far starts landed as before (full call 56 of 56,
+    /// stored model 54 of 56). For the outdoor pair one spacing is 13 mm, so 0.1 is 1.3 mm
+    /// and 1.5·10⁻⁵ rad; small_gicp stops at 1 mm and 0.1°. Objects polished against planes
+    /// at their target points ([`Self::target_planes`]) keep 0.01.
     #[serde(default = "default_scene_tolerance_spacings")]
     pub scene_tolerance_spacings: f64,
 }
