@@ -109,11 +109,12 @@ fn main() {
     );
     let t = a.times;
     println!(
-        "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",
+        "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, unplaced {:.1} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",
         a.time.as_secs_f64(),
         t.models.as_secs_f64(),
         t.pairs.as_secs_f64(),
         t.graph.as_secs_f64(),
+        t.unplaced.as_secs_f64(),
         t.consensus.as_secs_f64(),
         t.joint.as_secs_f64(),
         a.edges.iter().filter(|e| e.kept).count(),

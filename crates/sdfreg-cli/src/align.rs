@@ -100,13 +100,14 @@ pub fn run(a: AlignArgs) -> Result<()> {
     let placed = alignment.poses.iter().filter(|p| p.is_some()).count();
     let t = &alignment.times;
     eprintln!(
-        "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, consensus {:.1} s, joint refinement {:.1} s); {} of {} pairs kept",
+        "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, unplaced {:.1} s, consensus {:.1} s, joint refinement {:.1} s); {} of {} pairs kept",
         a.scans.len(),
         a.scans[a.anchor].display(),
         alignment.time.as_secs_f64(),
         t.models.as_secs_f64(),
         t.pairs.as_secs_f64(),
         t.graph.as_secs_f64(),
+        t.unplaced.as_secs_f64(),
         t.consensus.as_secs_f64(),
         t.joint.as_secs_f64(),
         alignment.edges.iter().filter(|e| e.kept).count(),
@@ -181,6 +182,7 @@ fn poses_json(
             "models": t.models.as_secs_f64() * 1e3,
             "pairs": t.pairs.as_secs_f64() * 1e3,
             "graph": t.graph.as_secs_f64() * 1e3,
+            "unplaced": t.unplaced.as_secs_f64() * 1e3,
             "consensus": t.consensus.as_secs_f64() * 1e3,
             "joint": t.joint.as_secs_f64() * 1e3,
         },

@@ -35,7 +35,7 @@ use crate::settings::{Caller, SettingsArgs};
 ///     seed: Seed of every random choice.
 ///     threads: Worker threads; 0 = one per core.
 ///     preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
-///         the start, with an object's polish pass ending when its steps stop shrinking).
+///         the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points).
 ///
 /// The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 ///
@@ -194,8 +194,9 @@ impl PyAlignment {
         Ok(d)
     }
 
-    /// Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``consensus``,
-    /// ``joint``.
+    /// Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``unplaced`` (the
+    /// scans the pose graph left unplaced, against one model of their partners),
+    /// ``consensus``, ``joint``.
     #[getter]
     fn stage_times_s<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = &self.alignment.times;
@@ -204,6 +205,7 @@ impl PyAlignment {
             ("models", t.models),
             ("pairs", t.pairs),
             ("graph", t.graph),
+            ("unplaced", t.unplaced),
             ("consensus", t.consensus),
             ("joint", t.joint),
         ] {

@@ -51,7 +51,7 @@ def test_partial_views_align_and_a_foreign_view_is_left_out() -> None:
     kept = [e for e in a.edges if e["kept"]]
     assert kept and all(isinstance(e["registration"], sdfreg.Registration) for e in kept)
     assert all(2 not in (e["source"], e["target"]) for e in kept)
-    assert set(a.stage_times_s) == {"models", "pairs", "graph", "consensus", "joint"}
+    assert set(a.stage_times_s) == {"models", "pairs", "graph", "unplaced", "consensus", "joint"}
     assert a.consensus["iterations"] == 0 and a.stage_times_s["consensus"] < 0.01
     # One model of them all: every placed view lies on it.
     moved = scans[1] @ a.poses[1][:3, :3].T + a.poses[1][:3, 3]

@@ -119,7 +119,7 @@ pub struct PolishSettings {
     /// nearest-point query a source point and iteration instead of a `k`-nearest query and a
     /// plane fit. Default false (planes at the moved
     /// source points average a noisy target better); [`crate::RegisterSettings::tracking`]
-    /// sets it.
+    /// and [`crate::RegisterSettings::views`] set it.
     #[serde(default)]
     pub target_planes: bool,
     /// A pass also ends when its step (the larger of its rotation, radians, and its

@@ -15,9 +15,11 @@
 //!    tree of the highest fitness gives the starting poses; an edge outside it is kept only when
 //!    it agrees with the tree ([`AlignSettings::consistent_rotation_deg`],
 //!    [`AlignSettings::consistent_translation`]); Gauss–Newton on the kept edges
-//!    ([`crate::views::graph`]). A scan left unplaced has its pairs registered the other way
-//!    round (stage 2 again) and the graph is made again; a scan no kept edge then joins to the
-//!    anchor is left out;
+//!    ([`crate::views::graph`]). A scan left unplaced is registered against one model of its
+//!    placed partners, and the graph made again with that pose as one more measurement of where
+//!    it lies (one of its edges that agrees places it); a scan still unplaced has its pairs
+//!    registered the other way round (stage 2 again) and the graph is made again; a scan no
+//!    kept edge then joins to the anchor is left out;
 //! 4. **consensus** (off by default) — every pose refined at once, point-to-plane against the
 //!    other scans' points where they overlap ([`crate::views::consensus`],
 //!    [`AlignSettings::consensus`]);
@@ -158,6 +160,9 @@ pub struct AlignTimes {
     pub pairs: Duration,
     /// The spanning tree, the edge check and the pose graph.
     pub graph: Duration,
+    /// Registering the scans the pose graph left unplaced against one model of their placed
+    /// partners.
+    pub unplaced: Duration,
     /// The multi-view refinement.
     pub consensus: Duration,
     /// The joint refinement.
@@ -238,8 +243,16 @@ pub fn align(
         return Err(Error::TooFewScans { found: usable });
     }
     let mut clock = Instant::now();
-    let mut poses = pose_graph(scans, &mut edges, init, s);
+    let none = vec![None; scans.len()];
+    let mut poses = pose_graph(scans, &mut edges, init, &none, s);
     lap(&mut clock, &mut times.graph);
+    let placed = unplaced_against_partners(scans, &edges, &poses, &mut left_out, init, s)?;
+    lap(&mut clock, &mut times.unplaced);
+    if placed.iter().any(Option::is_some) {
+        edges.iter_mut().for_each(|e| e.kept = false);
+        poses = pose_graph(scans, &mut edges, init, &placed, s);
+        lap(&mut clock, &mut times.graph);
+    }
     if let Some(reversed) = unplaced_reversed(&edges, &poses, &left_out) {
         edges.extend(models_and_pairs(
             scans,
@@ -252,7 +265,7 @@ pub fn align(
         )?);
         edges.iter_mut().for_each(|e| e.kept = false);
         clock = Instant::now();
-        poses = pose_graph(scans, &mut edges, init, s);
+        poses = pose_graph(scans, &mut edges, init, &placed, s);
         lap(&mut clock, &mut times.graph);
     }
     let consensus = consensus(scans, &mut poses, s.anchor, &s.consensus);
@@ -437,12 +450,78 @@ fn unplaced_reversed(
     (!reversed.is_empty()).then_some(reversed)
 }
 
+/// Stage 3 again, for the scans the pose graph left unplaced (not left out) that were paired
+/// with two or more placed scans: each registered (from nothing, or from its initial pose)
+/// against one model of those placed partners in the anchor's frame. Returns per scan where
+/// that put it (`None` for the others). It places no scan by itself: [`pose_graph`] counts it
+/// as one more measurement of where the scan lies, so one of the scan's own edges that agrees
+/// with it places the scan; a scan of something else is put somewhere else by each. On the
+/// bunny's 10 scans, `bun270`'s only right edge of the first round was the one with `bun315`
+/// (its other 12 were 68–170° off): one model of its 9 partners and one registration confirm
+/// it, where registering its 9 pairs the other way round ([`unplaced_reversed`]) took 6 more
+/// models and 9 more pairs. A scan whose fitness against all its placed partners at once is
+/// below [`AlignSettings::min_fitness`] lies on none of them: it is added to `left_out` (a
+/// ModelNet chair among the bunny's scans: 0.16; the bunny's scans 0.69–0.95), and its pairs
+/// are not registered the other way round.
+fn unplaced_against_partners(
+    scans: &[Vec<Point3<f64>>],
+    edges: &[Edge],
+    poses: &[Option<Isometry3<f64>>],
+    left_out: &mut Vec<(usize, String)>,
+    init: Option<&[Isometry3<f64>]>,
+    s: &AlignSettings,
+) -> Result<Vec<Option<Isometry3<f64>>>, Error> {
+    let settings = RegisterSettings {
+        threads: s.threads,
+        ..s.register.clone()
+    };
+    let mut placed = vec![None; scans.len()];
+    let unplaced: Vec<usize> = (0..scans.len())
+        .filter(|&k| poses[k].is_none() && !is_left_out(left_out, k))
+        .collect();
+    for k in unplaced {
+        let paired = |j: usize| {
+            edges
+                .iter()
+                .any(|e| (e.target, e.source) == (k, j) || (e.target, e.source) == (j, k))
+        };
+        let partners: Vec<Option<Isometry3<f64>>> = (0..scans.len())
+            .map(|j| poses[j].filter(|_| paired(j)))
+            .collect();
+        let count = partners.iter().flatten().count();
+        if count < 2 {
+            continue;
+        }
+        let model = SdfModel::fit(&merged_except(scans, &partners, None), &settings)?;
+        let start = init.map(|p| p[s.anchor].inverse() * p[k]);
+        let r = model.register(&scans[k], start.as_ref(), &settings)?;
+        if r.fitness >= s.min_fitness {
+            placed[k] = Some(r.t_target_source);
+        } else {
+            left_out.push((
+                k,
+                format!(
+                    "lies on none of the other scans: registered against one model of the {count} \
+                     placed scans it was paired with, {:.0} % of it lies on them (at least {:.0} % \
+                     needed)",
+                    100.0 * r.fitness,
+                    100.0 * s.min_fitness
+                ),
+            ));
+        }
+    }
+    Ok(placed)
+}
+
 /// Stage 3: the spanning tree, the edge check and the pose graph; marks the kept edges and
-/// returns each scan's pose (`None`: not joined to the anchor).
+/// returns each scan's pose (`None`: not joined to the anchor). `placed[k]`, when given, is one
+/// more measurement of scan `k`'s pose (by [`unplaced_against_partners`]) for the check of an
+/// unconfirmed scan's edges.
 fn pose_graph(
     scans: &[Vec<Point3<f64>>],
     edges: &mut [Edge],
     init: Option<&[Isometry3<f64>]>,
+    placed: &[Option<Isometry3<f64>>],
     s: &AlignSettings,
 ) -> Vec<Option<Isometry3<f64>>> {
     let n = scans.len();
@@ -478,19 +557,25 @@ fn pose_graph(
         })
         .collect();
     let (first, _) = tree_and_check(edges, &sure, n, s.anchor, &agree);
+    // Where each scan lies: on that tree, else where `placed` measured it.
+    let known: Vec<Option<Isometry3<f64>>> =
+        first.iter().zip(placed).map(|(f, p)| f.or(*p)).collect();
     // An unconfirmed scan keeps only the edges that agree with where two of them put it; a
     // scan none of whose edges agree with another (a scan of something else) keeps none.
     let agreed: Vec<(usize, Option<Isometry3<f64>>)> = unconfirmed
         .into_iter()
         .filter(|&k| k != s.anchor)
-        .map(|k| (k, placed_twice(edges, &candidates, &first, k, &agree)))
+        .map(|k| {
+            let at = placed_twice(edges, &candidates, &known, k, placed[k], &agree);
+            (k, at)
+        })
         .collect();
     let usable: Vec<usize> = candidates
         .iter()
         .copied()
         .filter(|&e| {
             agreed.iter().all(|&(k, at)| {
-                let Some((_, pose)) = edge_pose(&edges[e], &first, k) else {
+                let Some((_, pose)) = edge_pose(&edges[e], &known, k) else {
                     return true;
                 };
                 at.zip(pose)
@@ -599,12 +684,14 @@ fn edge_pose(
 }
 
 /// Where two of scan `k`'s candidate edges to scans placed at `poses` put it, when two (to
-/// different scans) agree: the first such pose.
+/// different scans) agree: the first such pose. `also`, when given, is one more measurement of
+/// where scan `k` lies (against several scans at once, [`unplaced_against_partners`]).
 fn placed_twice(
     edges: &[Edge],
     candidates: &[usize],
     poses: &[Option<Isometry3<f64>>],
     k: usize,
+    also: Option<Isometry3<f64>>,
     agree: &dyn Fn(&Isometry3<f64>) -> bool,
 ) -> Option<Isometry3<f64>> {
     let at: Vec<(usize, Isometry3<f64>)> = candidates
@@ -613,6 +700,7 @@ fn placed_twice(
             (partner, Some(pose)) => Some((partner, pose)),
             _ => None,
         })
+        .chain(also.map(|pose| (usize::MAX, pose)))
         .collect();
     at.iter().enumerate().find_map(|(x, (a, ta))| {
         at[x + 1..]
@@ -727,38 +815,70 @@ fn joint_round(
 mod tests {
     use super::*;
     use crate::geometry::se3::{exp_se3, pose_errors};
-    use nalgebra::Vector6;
+    use nalgebra::{Vector3, Vector6};
     use rand::SeedableRng;
+
+    /// Six scans of a blob at known poses, and edges between them that are copies of one real
+    /// registration, each with the pose and fitness a test gives it.
+    struct Synthetic {
+        blob: Vec<Point3<f64>>,
+        base: Registration,
+        truth: Vec<Isometry3<f64>>,
+    }
+
+    impl Synthetic {
+        fn new() -> Self {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+            let blob = crate::sim::shapes::blob(400, &mut rng);
+            let settings = RegisterSettings::default();
+            let base = crate::pipeline::register::register(&blob, &blob, None, &settings);
+            let truth = (0..6)
+                .map(|k| exp_se3(&Vector6::new(0.0, 0.0, 0.4 * k as f64, k as f64, 0.0, 0.0)))
+                .collect();
+            Self {
+                blob,
+                base: base.unwrap(),
+                truth,
+            }
+        }
+
+        /// The true pose of scan `j` in scan `i`'s frame.
+        fn right(&self, i: usize, j: usize) -> Isometry3<f64> {
+            self.truth[i].inverse() * self.truth[j]
+        }
+
+        /// Scans 0–3: two triangles, 0-1-2 and 1-2-3, every edge right (fitness 0.8).
+        fn triangles(&self) -> Vec<Edge> {
+            [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+                .map(|(i, j)| self.edge(i, j, self.right(i, j), 0.8))
+                .into()
+        }
+
+        fn edge(&self, i: usize, j: usize, z: Isometry3<f64>, fitness: f64) -> Edge {
+            Edge {
+                target: i,
+                source: j,
+                registration: Ok(Registration {
+                    t_target_source: z,
+                    fitness,
+                    ..self.base.clone()
+                }),
+                kept: false,
+            }
+        }
+    }
+
+    /// A wrong pose: `a` radians about x and half a unit along x away.
+    fn off(a: f64) -> Isometry3<f64> {
+        exp_se3(&Vector6::new(a, 0.0, 0.0, 0.5, 0.0, 0.0))
+    }
 
     #[test]
     fn a_scan_whose_edges_agree_on_its_place_is_kept_and_one_whose_edges_do_not_is_left_out() {
-        // One real registration; each edge is a copy with its own pose and fitness.
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-        let blob = crate::sim::shapes::blob(400, &mut rng);
-        let settings = RegisterSettings::default();
-        let base = crate::pipeline::register::register(&blob, &blob, None, &settings).unwrap();
-        let truth: Vec<Isometry3<f64>> = (0..6)
-            .map(|k| exp_se3(&Vector6::new(0.0, 0.0, 0.4 * k as f64, k as f64, 0.0, 0.0)))
-            .collect();
-        let right = |i: usize, j: usize| truth[i].inverse() * truth[j];
-        let off = |a: f64| exp_se3(&Vector6::new(a, 0.0, 0.0, 0.5, 0.0, 0.0));
-        let edge = |i: usize, j: usize, z: Isometry3<f64>, fitness: f64| Edge {
-            target: i,
-            source: j,
-            registration: Ok(Registration {
-                t_target_source: z,
-                fitness,
-                ..base.clone()
-            }),
-            kept: false,
-        };
-        let mut edges = vec![
-            // Scans 0–3: two triangles, 0-1-2 and 1-2-3, every edge right.
-            edge(0, 1, right(0, 1), 0.8),
-            edge(0, 2, right(0, 2), 0.8),
-            edge(1, 2, right(1, 2), 0.8),
-            edge(1, 3, right(1, 3), 0.8),
-            edge(2, 3, right(2, 3), 0.8),
+        let t = Synthetic::new();
+        let (right, edge) = (|i, j| t.right(i, j), |i, j, z, f| t.edge(i, j, z, f));
+        let mut edges = t.triangles();
+        edges.extend([
             // Scan 4, real: right onto 0 and 3 (which share no edge, so no cycle confirms it)
             // and wrong onto 1, with the highest fitness of all.
             edge(0, 4, right(0, 4), 0.6),
@@ -767,10 +887,10 @@ mod tests {
             // Scan 5, of something else: registered onto 0 and onto 1, each somewhere else.
             edge(0, 5, right(0, 5) * off(0.3), 0.7),
             edge(1, 5, right(1, 5) * off(-0.4), 0.7),
-        ];
-        let scans = vec![blob.clone(); 6];
+        ]);
+        let scans = vec![t.blob.clone(); 6];
         let s = AlignSettings::default();
-        let poses = pose_graph(&scans, &mut edges, None, &s);
+        let poses = pose_graph(&scans, &mut edges, None, &[None; 6], &s);
         for (k, pose) in poses.iter().enumerate().take(5) {
             let (rot, trans) = pose_errors(&pose.expect("placed"), &right(0, k));
             assert!(rot < 1e-4 && trans < 1e-6, "scan {k}: {rot}° {trans}");
@@ -783,5 +903,111 @@ mod tests {
             unplaced_reversed(&edges, &poses, &[]),
             Some(vec![(5, 0), (5, 1)])
         );
+    }
+
+    #[test]
+    fn a_measurement_against_several_scans_places_a_scan_with_one_right_edge_and_no_other() {
+        let t = Synthetic::new();
+        let (right, edge) = (|i, j| t.right(i, j), |i, j, z, f| t.edge(i, j, z, f));
+        let mut edges = t.triangles();
+        edges.extend([
+            // Scan 4: right onto 0 only, wrong onto 1 and 2 (as bun270 among the bunny's).
+            edge(0, 4, right(0, 4), 0.6),
+            edge(1, 4, right(1, 4) * off(0.3), 0.5),
+            edge(2, 4, right(2, 4) * off(-0.4), 0.5),
+            // Scan 5: right onto 4 only (itself unplaced), wrong onto 1.
+            edge(4, 5, right(4, 5), 0.6),
+            edge(1, 5, right(1, 5) * off(0.5), 0.5),
+        ]);
+        let scans = vec![t.blob.clone(); 6];
+        let s = AlignSettings::default();
+        let graph = |measured: &[Option<Isometry3<f64>>]| {
+            let mut edges = edges.clone();
+            let poses = pose_graph(&scans, &mut edges, None, measured, &s);
+            (poses, edges)
+        };
+        // Without a second measurement, no two edges of scan 4 (or 5) agree: both unplaced.
+        let (poses, _) = graph(&[None; 6]);
+        assert!(poses[..4].iter().all(Option::is_some));
+        assert!(poses[4].is_none() && poses[5].is_none());
+        // Measured where they are: each right edge agrees and places its scan (scan 5 through
+        // scan 4's measured pose); the wrong edges are not kept.
+        let mut measured = [None; 6];
+        (measured[4], measured[5]) = (Some(right(0, 4)), Some(right(0, 5)));
+        let (poses, kept) = graph(&measured);
+        for (k, pose) in poses.iter().enumerate() {
+            let (rot, trans) = pose_errors(&pose.expect("placed"), &right(0, k));
+            assert!(rot < 1e-4 && trans < 1e-6, "scan {k}: {rot}° {trans}");
+        }
+        assert!(kept[5].kept && kept[8].kept);
+        assert!(!kept[6].kept && !kept[7].kept && !kept[9].kept);
+        // Measured somewhere else (a scan of something else): still unplaced.
+        measured[4] = Some(right(0, 4) * off(0.2));
+        measured[5] = None;
+        let (poses, _) = graph(&measured);
+        assert!(poses[4].is_none() && poses[5].is_none());
+    }
+
+    #[test]
+    fn an_unplaced_scan_is_registered_against_one_model_of_its_placed_partners() {
+        // Four partial views of a blob, each in its own frame; scans 0–2 placed, 3 not.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let blob = crate::sim::shapes::blob(6000, &mut rng);
+        let truth: Vec<Isometry3<f64>> = (0..4)
+            .map(|k| {
+                let a = k as f64;
+                exp_se3(&Vector6::new(
+                    0.2 * a,
+                    -0.1 * a,
+                    0.9 * a,
+                    0.3 * a,
+                    0.1,
+                    -0.2 * a,
+                ))
+            })
+            .collect();
+        let views: Vec<Vec<Point3<f64>>> = (0..4)
+            .map(|k| {
+                let d = Vector3::new((1.6 * k as f64).cos(), (1.6 * k as f64).sin(), 0.3);
+                blob.iter()
+                    .filter(|p| p.coords.dot(&d) > -0.2)
+                    .map(|p| truth[k].inverse() * p)
+                    .collect()
+            })
+            .collect();
+        let poses: Vec<Option<Isometry3<f64>>> = (0..4)
+            .map(|k| (k < 3).then(|| truth[0].inverse() * truth[k]))
+            .collect();
+        let failed = |i: usize, j: usize| Edge {
+            target: i,
+            source: j,
+            registration: Err("wrong".into()),
+            kept: false,
+        };
+        let edges = vec![failed(0, 3), failed(1, 3), failed(3, 2)];
+        let s = AlignSettings::default();
+        let mut left_out = Vec::new();
+        let placed =
+            unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s).unwrap();
+        assert!(placed[..3].iter().all(Option::is_none) && left_out.is_empty());
+        let (rot, trans) = pose_errors(
+            &placed[3].expect("measured"),
+            &(truth[0].inverse() * truth[3]),
+        );
+        assert!(rot < 0.5 && trans < 0.01, "{rot}° {trans}");
+        // With one placed partner there is nothing to measure it against but that pair again.
+        let one = [edges[0].clone()];
+        let placed =
+            unplaced_against_partners(&views, &one, &poses, &mut left_out, None, &s).unwrap();
+        assert!(placed.iter().all(Option::is_none) && left_out.is_empty());
+        // A scan of something else lies on none of them: left out, saying so.
+        let mut views = views;
+        views[3] = crate::sim::shapes::bracket(3000, &mut rng);
+        let placed =
+            unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s).unwrap();
+        assert!(placed.iter().all(Option::is_none));
+        assert_eq!(left_out.len(), 1);
+        assert_eq!(left_out[0].0, 3);
+        assert!(left_out[0].1.contains("lies on none"), "{}", left_out[0].1);
     }
 }

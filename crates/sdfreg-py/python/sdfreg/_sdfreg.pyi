@@ -595,7 +595,7 @@ def register(
             refined.
         preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
             robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
-            object's polish pass ending when its steps stop shrinking). The arguments below override it; None keeps the
+            object's polish pass ending when its steps stop shrinking, against planes at the target's points). The arguments below override it; None keeps the
             preset's value.
         robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
             ``"on"``, ``"off"``, or a :class:`RobustSettings`.
@@ -669,7 +669,7 @@ def align(
         seed: Seed of every random choice.
         threads: Worker threads; 0 = one per core.
         preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
-            the start, with an object's polish pass ending when its steps stop shrinking).
+            the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points).
 
     The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 
@@ -720,8 +720,8 @@ class Alignment:
         """
     @property
     def stage_times_s(self) -> Dict[str, float]:
-        """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``consensus``,
-        ``joint``."""
+        """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``unplaced``,
+        ``consensus``, ``joint``."""
 
 def register_many(
     pairs: Iterable[
