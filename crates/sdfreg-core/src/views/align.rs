@@ -246,7 +246,7 @@ pub fn align(
     let none = vec![None; scans.len()];
     let mut poses = pose_graph(scans, &mut edges, init, &none, s);
     lap(&mut clock, &mut times.graph);
-    let placed = unplaced_against_partners(scans, &edges, &poses, &mut left_out, init, s)?;
+    let placed = unplaced_against_partners(scans, &edges, &poses, &mut left_out, init, s);
     lap(&mut clock, &mut times.unplaced);
     if placed.iter().any(Option::is_some) {
         edges.iter_mut().for_each(|e| e.kept = false);
@@ -470,7 +470,7 @@ fn unplaced_against_partners(
     left_out: &mut Vec<(usize, String)>,
     init: Option<&[Isometry3<f64>]>,
     s: &AlignSettings,
-) -> Result<Vec<Option<Isometry3<f64>>>, Error> {
+) -> Vec<Option<Isometry3<f64>>> {
     let settings = RegisterSettings {
         threads: s.threads,
         ..s.register.clone()
@@ -492,9 +492,15 @@ fn unplaced_against_partners(
         if count < 2 {
             continue;
         }
-        let model = SdfModel::fit(&merged_except(scans, &partners, None), &settings)?;
+        // A fit or a registration that fails measures nothing: the scan's pairs then go round
+        // the other way, as before this stage (the scans themselves were checked by stage 1).
+        let Ok(model) = SdfModel::fit(&merged_except(scans, &partners, None), &settings) else {
+            continue;
+        };
         let start = init.map(|p| p[s.anchor].inverse() * p[k]);
-        let r = model.register(&scans[k], start.as_ref(), &settings)?;
+        let Ok(r) = model.register(&scans[k], start.as_ref(), &settings) else {
+            continue;
+        };
         if r.fitness >= s.min_fitness {
             placed[k] = Some(r.t_target_source);
         } else {
@@ -510,7 +516,7 @@ fn unplaced_against_partners(
             ));
         }
     }
-    Ok(placed)
+    placed
 }
 
 /// Stage 3: the spanning tree, the edge check and the pose graph; marks the kept edges and
@@ -987,8 +993,7 @@ mod tests {
         let edges = vec![failed(0, 3), failed(1, 3), failed(3, 2)];
         let s = AlignSettings::default();
         let mut left_out = Vec::new();
-        let placed =
-            unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s).unwrap();
+        let placed = unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s);
         assert!(placed[..3].iter().all(Option::is_none) && left_out.is_empty());
         let (rot, trans) = pose_errors(
             &placed[3].expect("measured"),
@@ -997,14 +1002,12 @@ mod tests {
         assert!(rot < 0.5 && trans < 0.01, "{rot}° {trans}");
         // With one placed partner there is nothing to measure it against but that pair again.
         let one = [edges[0].clone()];
-        let placed =
-            unplaced_against_partners(&views, &one, &poses, &mut left_out, None, &s).unwrap();
+        let placed = unplaced_against_partners(&views, &one, &poses, &mut left_out, None, &s);
         assert!(placed.iter().all(Option::is_none) && left_out.is_empty());
         // A scan of something else lies on none of them: left out, saying so.
         let mut views = views;
         views[3] = crate::sim::shapes::bracket(3000, &mut rng);
-        let placed =
-            unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s).unwrap();
+        let placed = unplaced_against_partners(&views, &edges, &poses, &mut left_out, None, &s);
         assert!(placed.iter().all(Option::is_none));
         assert_eq!(left_out.len(), 1);
         assert_eq!(left_out[0].0, 3);
