@@ -115,6 +115,15 @@ impl Default for AlignSettings {
 }
 
 impl AlignSettings {
+    /// The settings of every registration and model fit: [`Self::register`] with
+    /// [`Self::threads`].
+    fn registration(&self) -> RegisterSettings {
+        RegisterSettings {
+            threads: self.threads,
+            ..self.register.clone()
+        }
+    }
+
     /// Checks every field; the error names it (`align.min_fitness`, …).
     pub fn validate(&self) -> Result<(), Error> {
         self.register.validate()?;
@@ -374,10 +383,7 @@ fn models_and_pairs(
     s: &AlignSettings,
     times: &mut AlignTimes,
 ) -> Result<Vec<Edge>, Error> {
-    let settings = RegisterSettings {
-        threads: s.threads,
-        ..s.register.clone()
-    };
+    let settings = s.registration();
     let targets: Vec<usize> = (0..scans.len())
         .filter(|&k| fit_all || pairs.iter().any(|&(i, _)| i == k))
         .filter(|&k| !is_left_out(left_out, k))
@@ -471,10 +477,7 @@ fn unplaced_against_partners(
     init: Option<&[Isometry3<f64>]>,
     s: &AlignSettings,
 ) -> Vec<Option<Isometry3<f64>>> {
-    let settings = RegisterSettings {
-        threads: s.threads,
-        ..s.register.clone()
-    };
+    let settings = s.registration();
     let mut placed = vec![None; scans.len()];
     let unplaced: Vec<usize> = (0..scans.len())
         .filter(|&k| poses[k].is_none() && !is_left_out(left_out, k))
@@ -494,11 +497,8 @@ fn unplaced_against_partners(
         }
         // A fit or a registration that fails measures nothing: the scan's pairs then go round
         // the other way, as before this stage (the scans themselves were checked by stage 1).
-        let Ok(model) = SdfModel::fit(&merged_except(scans, &partners, None), &settings) else {
-            continue;
-        };
         let start = init.map(|p| p[s.anchor].inverse() * p[k]);
-        let Ok(r) = model.register(&scans[k], start.as_ref(), &settings) else {
+        let Ok(r) = against_the_others(scans, &partners, k, start.as_ref(), &settings) else {
             continue;
         };
         if r.fitness >= s.min_fitness {
@@ -787,7 +787,20 @@ fn median_extent(scans: &[Vec<Point3<f64>>]) -> f64 {
     sides.get(sides.len() / 2).copied().unwrap_or(1.0)
 }
 
-/// Stage 4, one round: each placed scan registered (Φ frozen, from its pose) against one model
+/// Scan `k` registered (from `start` in the common frame, or from nothing) against one model
+/// of the other scans placed at `poses`, in that frame ([`merged_except`]).
+fn against_the_others(
+    scans: &[Vec<Point3<f64>>],
+    poses: &[Option<Isometry3<f64>>],
+    k: usize,
+    start: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+) -> Result<Registration, Error> {
+    let model = SdfModel::fit(&merged_except(scans, poses, Some(k)), settings)?;
+    model.register(&scans[k], start, settings)
+}
+
+/// Stage 5, one round: each placed scan registered (Φ frozen, from its pose) against one model
 /// of all the other placed scans in the common frame — the anchor too (a bias of its own model,
 /// which every pair against it inherited, does not carry over when it is the one moved) — then
 /// every pose re-expressed in the anchor's new frame.
@@ -796,16 +809,11 @@ fn joint_round(
     poses: &mut [Option<Isometry3<f64>>],
     s: &AlignSettings,
 ) -> Result<(), Error> {
-    let settings = RegisterSettings {
-        threads: s.threads,
-        ..s.register.clone()
-    };
+    let settings = s.registration();
     let before = poses.to_vec();
     for k in 0..scans.len() {
         let Some(start) = before[k] else { continue };
-        let others = merged_except(scans, &before, Some(k));
-        let model = SdfModel::fit(&others, &settings)?;
-        let r = model.register(&scans[k], Some(&start), &settings)?;
+        let r = against_the_others(scans, &before, k, Some(&start), &settings)?;
         poses[k] = Some(r.t_target_source);
     }
     if let Some(anchor) = poses[s.anchor] {
