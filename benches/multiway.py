@@ -90,6 +90,7 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--shuffle", action="store_true")
     parser.add_argument("--foreign", action="store_true")
+    parser.add_argument("--no-open3d", action="store_true", help="sdfreg.align alone")
     args = parser.parse_args()
     folder = args.data / "stanford" / "bunny" / "data"
     if not folder.is_dir():
@@ -114,6 +115,8 @@ def main() -> None:
     runs["sdfreg.align"] = (a.poses, time.perf_counter() - start)
     print(f"sdfreg.align: {a}, stages {a.stage_times_s}, left out {a.left_out}")
     try:
+        if args.no_open3d:
+            raise ImportError("--no-open3d")
         start = time.perf_counter()
         poses = open3d_multiway(scans)
         runs["Open3D multiway"] = (poses, time.perf_counter() - start)

@@ -9,6 +9,7 @@
 //!     cargo bench --bench views -- --joint 0    # without the joint refinement
 //!     cargo bench --bench views -- --consensus 30  # with the multi-view refinement
 //!     cargo bench --bench views -- --reference-consensus ../shared/data
+//!     cargo bench --bench views -- --range-noise 0   # the sensor's range noise, metres
 //!
 //! `--reference-consensus DATA` instead starts the multi-view refinement
 //! (`sdfreg_core::views::consensus`) from the Stanford bunny's reference poses
@@ -33,11 +34,14 @@ fn main() {
         return reference_consensus(std::path::Path::new(&data));
     }
     let views: usize = arg("--views").map_or(8, |v| v.parse().expect("--views N"));
-    let sensor = if views > 16 {
+    let mut sensor = if views > 16 {
         Sensor::spinning_32()
     } else {
         Sensor::spinning_64()
     };
+    if let Some(noise) = arg("--range-noise") {
+        sensor.range_noise = noise.parse().expect("--range-noise METRES");
+    }
     let (scans, truth) = room_loop(views, &sensor);
     if let Some(dir) = arg("--write") {
         std::fs::create_dir_all(&dir).expect("the folder");
