@@ -104,23 +104,10 @@ impl PlaneCache {
             && self.items.len() == nn.len()
             && self.items.iter().zip(nn).all(|(&a, b)| a == b.item);
         if !same {
-            let pts: Vec<Vector3<f64>> = nn
-                .iter()
-                .map(|n| {
-                    let p = target[n.item as usize];
-                    Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-                })
-                .collect();
-            let mean = pts.iter().sum::<Vector3<f64>>() / pts.len() as f64;
-            let cov: Matrix3<f64> = pts
-                .iter()
-                .map(|p| (p - mean) * (p - mean).transpose())
-                .sum();
-            let eig = SymmetricEigen::new(cov);
-            let n: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+            let (plane, _) = pca_plane(nn.iter().map(|n| target[n.item as usize]))?;
             self.items.clear();
             self.items.extend(nn.iter().map(|n| n.item));
-            self.plane = Some((mean, n));
+            self.plane = Some(plane);
         }
         Some(())
     }
