@@ -149,8 +149,8 @@ pub(crate) fn point_normal(
 /// to largest eigenvalue). A spinning LiDAR's returns lie on rings far denser along the ring
 /// than across: on the procedural room's floor (64 beams, 1 cm range noise) the 15 nearest
 /// points of a return are one ring's (ratio 0.01–0.05) and their PCA normal lies across the
-/// beam, not across the floor — tilted by the beam's elevation (19° median); without range
-/// noise it is arbitrary. Two rings give a ratio of 0.3 or more; a range scan's grid about 1.
+/// beam, not across the floor — tilted by the beam's elevation (19° median). Two rings give a
+/// ratio of 0.3 or more; a range scan's grid about 1.
 const LINE_RATIO: f64 = 0.1;
 
 /// A target point's plane takes at most this many times its `k` points, doubling while they
@@ -161,12 +161,10 @@ const MAX_LINE_GROWTH: usize = 16;
 /// twice as many while those are a line ([`LINE_RATIO`]: one ring of a LiDAR scan), up to
 /// [`MAX_LINE_GROWTH`] times `k`, so that the plane spans the surface between the rings.
 fn point_plane(target: &[[f32; 3]], tree: &Tree, i: usize, k: usize) -> Option<Plane> {
-    let q = target[i];
-    let x = [q[0], q[1], q[2]];
     let k = k.max(3);
     let mut n = k;
     loop {
-        let nn = tree.nearest_n::<SquaredEuclidean>(&x, NonZeroUsize::new(n)?);
+        let nn = tree.nearest_n::<SquaredEuclidean>(&target[i], NonZeroUsize::new(n)?);
         let (plane, line) = pca_plane(nn.iter().map(|m| target[m.item as usize]))?;
         if !line || n >= k * MAX_LINE_GROWTH || nn.len() < n {
             return Some(plane);
@@ -198,7 +196,8 @@ fn pca_plane(points: impl Iterator<Item = [f32; 3]>) -> Option<(Plane, bool)> {
 }
 
 /// Local planes at the target's own points, for scenes: the plane (PCA centroid and normal) of
-/// each target point's `k` nearest target points, computed once when first asked for and then
+/// each target point's `k` nearest target points (more while those are a line, as
+/// `point_plane` grows them), computed once when first asked for and then
 /// shared by every iteration, pass and shift-search candidate. A moved source point's residual
 /// is its distance to the plane of its nearest target point: one nearest-point query an
 /// iteration instead of a `k`-nearest query and a fit at the source point. Used when Φ is local
