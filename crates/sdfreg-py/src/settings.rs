@@ -444,11 +444,18 @@ settings_class! {
     ///     voxel: Cube side of the occupancy grids.
     ///     candidates: Peaks polished and scored at most.
     ///     min_gain: A peak replaces the pose only if it raises the fitness by this.
+    ///     scene_voxel_spacings: When Φ is local (a scene), the cube side and the distance
+    ///         within which a source point counts as on the target when peaks are compared, in
+    ///         target point spacings (offsets up to 16 cubes); 0 keeps ``voxel`` and the inlier
+    ///         distance.
+    ///     scene_min_gain: ``min_gain`` when Φ is local (a scene).
     PyShiftSearchSettings => ShiftSearchSettings as "ShiftSearchSettings", "shift_search" {
         radius: f64 = 0.3,
         voxel: f64 = 0.02,
         candidates: i64 = 4,
         min_gain: f64 = 0.02,
+        scene_voxel_spacings: f64 = 3.0,
+        scene_min_gain: f64 = 0.005,
     }
 }
 

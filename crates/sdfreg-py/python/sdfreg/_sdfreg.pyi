@@ -390,7 +390,14 @@ class ShiftSearchSettings:
     """The search for translations that lay more source points onto the target (normalised)."""
 
     def __new__(
-        cls, *, radius: float = 0.3, voxel: float = 0.02, candidates: int = 4, min_gain: float = 0.02
+        cls,
+        *,
+        radius: float = 0.3,
+        voxel: float = 0.02,
+        candidates: int = 4,
+        min_gain: float = 0.02,
+        scene_voxel_spacings: float = 3.0,
+        scene_min_gain: float = 0.005,
     ) -> ShiftSearchSettings: ...
     @property
     def radius(self) -> float: ...
@@ -400,6 +407,10 @@ class ShiftSearchSettings:
     def candidates(self) -> int: ...
     @property
     def min_gain(self) -> float: ...
+    @property
+    def scene_voxel_spacings(self) -> float: ...
+    @property
+    def scene_min_gain(self) -> float: ...
 
 @final
 class FreeMotion:
