@@ -567,14 +567,10 @@ impl Moments {
             o[4] - m[1] * m[2],
             o[5] - m[2] * m[2],
         );
-        let eig = cov.symmetric_eigen();
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-        let (mid, max) = (eig.eigenvalues[order[1]], eig.eigenvalues[order[2]]);
+        let (n, mid, max) = crate::geometry::planes::pca_normal(cov);
         if max.is_nan() || max <= 0.0 || mid < min_spread * max {
             return None;
         }
-        let n = eig.eigenvectors.column(order[0]);
         Some((m, [n[0], n[1], n[2]]))
     }
 }

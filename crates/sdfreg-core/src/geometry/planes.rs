@@ -187,12 +187,19 @@ fn pca_plane(points: impl Iterator<Item = [f32; 3]>) -> Option<(Plane, bool)> {
         .iter()
         .map(|p| (p - mean) * (p - mean).transpose())
         .sum();
+    let (n, mid, max) = pca_normal(cov);
+    Some(((mean, n), mid < LINE_RATIO * max))
+}
+
+/// The normal of the points whose covariance is `cov` (its least eigenvector, unit length,
+/// unoriented), and its middle and largest eigenvalues (the spread across and along the
+/// points' main direction: a line has the middle one near 0).
+pub(crate) fn pca_normal(cov: Matrix3<f64>) -> (Vector3<f64>, f64, f64) {
     let eig = SymmetricEigen::new(cov);
     let mut order = [0, 1, 2];
     order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
     let n: Vector3<f64> = eig.eigenvectors.column(order[0]).into_owned();
-    let line = eig.eigenvalues[order[1]] < LINE_RATIO * eig.eigenvalues[order[2]];
-    Some(((mean, n), line))
+    (n, eig.eigenvalues[order[1]], eig.eigenvalues[order[2]])
 }
 
 /// Local planes at the target's own points, for scenes: the plane (PCA centroid and normal) of

@@ -51,7 +51,7 @@ use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::pipeline::shift_search::search;
 use crate::pipeline::surface::{Surface, WithGrid};
 use crate::pipeline::target::prefit;
-use crate::solve::lm::{Lm, ScaleDof, StopReason};
+use crate::solve::lm::{Lm, ScaleDof};
 
 /// Registers `source` onto `target`; see the module docs. `init` (user frame, maps source into
 /// target) replaces the multi-start when given.
@@ -336,13 +336,9 @@ fn run<S: Surface>(
         Some(_) => Cow::Owned(unit.source.iter().map(|p| p * polished.scale).collect()),
     };
     let polish_from = |start: &Isometry3<f64>| polish_with(&source, start, None);
-    let mut plan = s
-        .shift_search
-        .for_target(fit.is_local(), fit.spacing(), s.inlier_distance);
-    if plan.reach.is_some() && polished.stop_reason == StopReason::MaxIterations {
-        // A scene's polish that did not converge is not at a slide of the right pose.
-        plan.settings.radius = 0.0;
-    }
+    let plan =
+        s.shift_search
+            .for_target(fit.is_local(), fit.spacing(), s.inlier_distance, &polished);
     let searched = search(
         &source,
         fit.target(),

@@ -31,7 +31,8 @@ use rayon::prelude::*;
 use crate::geometry::cloud::transformed_f32;
 use crate::geometry::tree::Tree;
 use crate::pipeline::polish::PolishOutcome;
-use crate::solve::measure::inlier_stats;
+use crate::solve::lm::StopReason;
+use crate::solve::measure::{inlier_stats_of, nearest_distances2};
 
 /// Settings of the translation search after the polish: with the rotation kept, both clouds
 /// are binned into cubes and every pair of occupied cubes votes for its offset (a sparse
@@ -120,8 +121,15 @@ impl ShiftSearchSettings {
     /// scene's cubes are [`Self::scene_voxel_spacings`] spacings (and so the comparison's
     /// distance), its offsets at most [`SCENE_MAX_CUBES`] of them, its gain
     /// [`Self::scene_min_gain`], and a candidate whose polish walked beyond the offsets
-    /// searched or turned it more than [`SCENE_MAX_TURN_DEG`] is not taken.
-    pub(crate) fn for_target(&self, local: bool, spacing: f64, inlier_distance: f64) -> Plan {
+    /// searched or turned it more than [`SCENE_MAX_TURN_DEG`] is not taken; after a scene's
+    /// polish (`polished`) that ran out of iterations there is no search.
+    pub(crate) fn for_target(
+        &self,
+        local: bool,
+        spacing: f64,
+        inlier_distance: f64,
+        polished: &PolishOutcome,
+    ) -> Plan {
         if !local || self.scene_voxel_spacings <= 0.0 || spacing <= 0.0 {
             return Plan {
                 settings: self.clone(),
@@ -130,7 +138,12 @@ impl ShiftSearchSettings {
             };
         }
         let voxel = self.scene_voxel_spacings * spacing;
-        let radius = self.radius.min(SCENE_MAX_CUBES * voxel);
+        // A polish that did not converge is not at a slide of the right pose: no search.
+        let radius = if polished.stop_reason == StopReason::MaxIterations {
+            0.0
+        } else {
+            self.radius.min(SCENE_MAX_CUBES * voxel)
+        };
         Plan {
             settings: Self {
                 voxel,
@@ -328,8 +341,10 @@ pub(crate) fn search(
     let thr2 = inlier_distance * inlier_distance;
     let gate2 = plan.gate * plan.gate;
     let moved = transformed_f32(source, pose);
-    let (fitness, inlier_rms) = inlier_stats(tree, &moved, thr2);
-    let laid = |moved: &[[f32; 3]]| inlier_stats(tree, moved, gate2).0;
+    let d2 = nearest_distances2(tree, &moved);
+    let (fitness, inlier_rms) = inlier_stats_of(&d2, thr2);
+    // The share laid within the gate (the fitness itself when the gate is the inlier distance).
+    let laid = |d2: &[f32]| inlier_stats_of(d2, gate2).0;
     let peaks = occupancy_peaks(&moved, target, s);
     let peaks_tried = peaks.len();
     let mut out = Searched {
@@ -341,7 +356,7 @@ pub(crate) fn search(
         taken: None,
         start_fitness: fitness,
     };
-    let mut best = laid(&out.moved) + s.min_gain;
+    let mut best = laid(&d2) + s.min_gain;
     for peak in peaks {
         let start = Translation3::from(peak.offset) * pose;
         let candidate = polish_from(&start);
@@ -352,10 +367,11 @@ pub(crate) fn search(
             }
         }
         let candidate_moved = transformed_f32(source, &candidate.pose);
-        let g = laid(&candidate_moved);
+        let candidate_d2 = nearest_distances2(tree, &candidate_moved);
+        let g = laid(&candidate_d2);
         if g >= best {
             best = g;
-            (out.fitness, out.inlier_rms) = inlier_stats(tree, &candidate_moved, thr2);
+            (out.fitness, out.inlier_rms) = inlier_stats_of(&candidate_d2, thr2);
             out.pose = candidate.pose;
             out.moved = candidate_moved;
             out.taken = Some(candidate);

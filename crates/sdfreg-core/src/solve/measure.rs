@@ -16,17 +16,27 @@ use crate::solve::lm::{jacobian_row, similarity_row};
 /// Fitness — the fraction of the (already moved) `points` within `sqrt(thr2)` of a target
 /// point — and the RMS distance of those inliers, normalised units.
 pub(crate) fn inlier_stats(tree: &Tree, points: &[[f32; 3]], thr2: f64) -> (f64, f64) {
-    let thr2 = thr2 as f32;
-    let d2: Vec<f32> = points
+    inlier_stats_of(&nearest_distances2(tree, points), thr2)
+}
+
+/// The squared distance of each of `points` to its nearest target point (`tree`).
+pub(crate) fn nearest_distances2(tree: &Tree, points: &[[f32; 3]]) -> Vec<f32> {
+    points
         .par_iter()
         .map(|x| tree.nearest_one::<SquaredEuclidean>(x).distance)
-        .collect();
+        .collect()
+}
+
+/// [`inlier_stats`] from the points' squared nearest distances `d2`
+/// ([`nearest_distances2`]).
+pub(crate) fn inlier_stats_of(d2: &[f32], thr2: f64) -> (f64, f64) {
+    let thr2 = thr2 as f32;
     let inliers: Vec<f64> = d2
         .iter()
         .filter(|&&d| d <= thr2)
         .map(|&d| d as f64)
         .collect();
-    let fitness = inliers.len() as f64 / points.len().max(1) as f64;
+    let fitness = inliers.len() as f64 / d2.len().max(1) as f64;
     let rms = if inliers.is_empty() {
         0.0
     } else {
