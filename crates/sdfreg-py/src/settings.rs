@@ -419,6 +419,8 @@ settings_class! {
     ///         for this many iterations; 0 never (the ``"views"`` preset: 10).
     ///     scene_tolerance_spacings: When Φ is local (a scene), a pass has converged when its
     ///         step is below this many target point spacings.
+    ///     scene_kernel_floor_spacings: When Φ is local (a scene), the robust kernel's scale is
+    ///         at least this many target point spacings (noise-free scans); 0 none.
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -433,6 +435,7 @@ settings_class! {
         target_planes: bool = false,
         patience: i64 = 0,
         scene_tolerance_spacings: f64 = 0.1,
+        scene_kernel_floor_spacings: f64 = 1.0,
     }
 }
 

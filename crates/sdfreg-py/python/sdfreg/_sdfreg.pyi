@@ -357,6 +357,7 @@ class PolishSettings:
         target_planes: bool = False,
         patience: int = 0,
         scene_tolerance_spacings: float = 0.1,
+        scene_kernel_floor_spacings: float = 1.0,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -384,6 +385,8 @@ class PolishSettings:
     def patience(self) -> int: ...
     @property
     def scene_tolerance_spacings(self) -> float: ...
+    @property
+    def scene_kernel_floor_spacings(self) -> float: ...
 
 @final
 class ShiftSearchSettings:
