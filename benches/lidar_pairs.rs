@@ -6,29 +6,43 @@
 //!     cargo bench --bench lidar_pairs
 //!     cargo bench --bench lidar_pairs -- --write DIR   # also DIR/{street,room}/{source,target}.ply
 //!                                                      # and gt.txt, for benches/lidar_compare.py
+//!     cargo bench --bench lidar_pairs -- --range-noise 0   # the sensors' range noise, metres
 
 use nalgebra::Isometry3;
 use sdfreg_core::geometry::se3::pose_errors;
-use sdfreg_core::sim::lidar::{room_pair, street_pair};
+use sdfreg_core::sim::lidar::{room_pair_with, street_pair_with, Sensor};
 use sdfreg_core::{register, RegisterSettings};
 
-/// `--write DIR` from the command line (cargo bench passes `--bench` too).
-fn write_dir() -> Option<std::path::PathBuf> {
+/// The value after `flag` on the command line (cargo bench passes `--bench` too).
+fn arg(flag: &str) -> Option<String> {
     let args: Vec<String> = std::env::args().collect();
-    let i = args.iter().position(|a| a == "--write")?;
+    let i = args.iter().position(|a| a == flag)?;
     match args.get(i + 1) {
-        Some(dir) => Some(dir.into()),
+        Some(value) => Some(value.clone()),
         None => {
-            eprintln!("lidar_pairs: --write needs a directory");
+            eprintln!("lidar_pairs: {flag} needs a value");
             std::process::exit(2);
         }
     }
 }
 
 fn main() {
-    let write = write_dir();
+    let write = arg("--write").map(std::path::PathBuf::from);
+    let noise = arg("--range-noise").map(|v| {
+        v.parse::<f64>().unwrap_or_else(|_| {
+            eprintln!("lidar_pairs: --range-noise needs metres, got {v}");
+            std::process::exit(2);
+        })
+    });
+    let sensor = |s: Sensor| Sensor {
+        range_noise: noise.unwrap_or(s.range_noise),
+        ..s
+    };
     let settings = RegisterSettings::default();
-    for pair in [street_pair(), room_pair()] {
+    for pair in [
+        street_pair_with(&sensor(Sensor::spinning_32())),
+        room_pair_with(&sensor(Sensor::spinning_64())),
+    ] {
         let (source, target, truth) = (&pair.source, &pair.target, pair.t_target_source);
         println!(
             "{}: {} / {} points",

@@ -343,6 +343,7 @@ fn run<S: Surface>(
         &source,
         fit.target(),
         fit.tree(),
+        planes.as_deref(),
         &polished.pose,
         &plan,
         polish_from,

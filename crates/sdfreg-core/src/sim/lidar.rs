@@ -364,11 +364,16 @@ fn pair(
 /// the ground from two poses 1.2 m along the street and 0.2 m across, 3° apart (about 55 000
 /// returns each).
 pub fn street_pair() -> ScanPair {
+    street_pair_with(&Sensor::spinning_32())
+}
+
+/// [`street_pair`] scanned by `sensor` (another range noise, another number of beams).
+pub fn street_pair_with(sensor: &Sensor) -> ScanPair {
     pair(
         "street",
         "street (100 m, 32 beams), 1.2 m and 3° apart",
         &Scene::street(100.0, &mut ChaCha8Rng::seed_from_u64(1)),
-        &Sensor::spinning_32(),
+        sensor,
         level_pose(0.0, -1.5, 1.8, 0.0),
         level_pose(1.2, -1.3, 1.8, 3.0),
     )
@@ -377,11 +382,16 @@ pub fn street_pair() -> ScanPair {
 /// The room pair: a 6 × 4 m room (seed 2) scanned by [`Sensor::spinning_64`] 1.2 m above the
 /// floor from two poses 0.58 m and 4° apart (about 115 000 returns each).
 pub fn room_pair() -> ScanPair {
+    room_pair_with(&Sensor::spinning_64())
+}
+
+/// [`room_pair`] scanned by `sensor` (another range noise, another number of beams).
+pub fn room_pair_with(sensor: &Sensor) -> ScanPair {
     pair(
         "room",
         "room (6 × 4 m, 64 beams), 0.58 m and 4° apart",
         &Scene::room(&mut ChaCha8Rng::seed_from_u64(2)),
-        &Sensor::spinning_64(),
+        sensor,
         level_pose(0.0, 0.0, 1.2, 0.0),
         level_pose(0.5, 0.3, 1.2, 4.0),
     )
