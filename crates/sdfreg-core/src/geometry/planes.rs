@@ -227,8 +227,8 @@ impl TargetPlanes {
         }
     }
 
-    /// The plane at target point `i`.
-    fn plane(
+    /// The plane at target point `i`: its centroid and unit normal.
+    pub(crate) fn plane(
         &self,
         target: &[[f32; 3]],
         tree: &Tree,

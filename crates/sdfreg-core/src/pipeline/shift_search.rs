@@ -32,11 +32,11 @@ use nalgebra::{Isometry3, Point3, Translation3, Vector3};
 use rayon::prelude::*;
 
 use crate::geometry::cloud::transformed_f32;
-use crate::geometry::planes::{PlaneCache, TargetPlanes};
+use crate::geometry::planes::TargetPlanes;
 use crate::geometry::tree::Tree;
 use crate::pipeline::polish::PolishOutcome;
 use crate::solve::lm::StopReason;
-use crate::solve::measure::{inlier_stats_of, nearest_distances2};
+use crate::solve::measure::{inlier_stats_of, nearest_points};
 
 /// Settings of the translation search after the polish: with the rotation kept, both clouds
 /// are binned into cubes and every pair of occupied cubes votes for its offset (a sparse
@@ -354,8 +354,14 @@ pub(crate) fn search(
     let s = &plan.settings;
     let thr2 = inlier_distance * inlier_distance;
     let gate2 = plan.gate * plan.gate;
+    // One k-d pass per pose: each point's nearest target point, and the squared distances.
+    let nearest = |moved: &[[f32; 3]]| {
+        let nn = nearest_points(tree, moved);
+        let d2: Vec<f32> = nn.iter().map(|n| n.0).collect();
+        (nn, d2)
+    };
     let moved = transformed_f32(source, pose);
-    let d2 = nearest_distances2(tree, &moved);
+    let (nn, d2) = nearest(&moved);
     let (fitness, inlier_rms) = inlier_stats_of(&d2, thr2);
     // The share laid within the gate (the fitness itself when the gate is the inlier distance).
     let laid = |d2: &[f32]| inlier_stats_of(d2, gate2).0;
@@ -373,11 +379,11 @@ pub(crate) fn search(
     let mut best = laid(&d2) + s.min_gain;
     // A scene's comparison: its planes, and the pose a candidate would replace, as distances.
     let scene = plan.cover.zip(planes);
-    let on_planes = |moved: &[[f32; 3]], d2: &[f32]| match scene {
-        Some((cover, planes)) => plane_distances(planes, target, tree, moved, d2, cover),
+    let on_planes = |moved: &[[f32; 3]], nn: &[(f32, u32)]| match scene {
+        Some((cover, planes)) => plane_distances(planes, target, tree, moved, nn, cover),
         None => Vec::new(),
     };
-    let mut replaced = on_planes(&out.moved, &d2);
+    let mut replaced = on_planes(&out.moved, &nn);
     for peak in peaks {
         let start = Translation3::from(peak.offset) * pose;
         let candidate = polish_from(&start);
@@ -388,8 +394,8 @@ pub(crate) fn search(
             }
         }
         let candidate_moved = transformed_f32(source, &candidate.pose);
-        let candidate_d2 = nearest_distances2(tree, &candidate_moved);
-        let candidate_planes = on_planes(&candidate_moved, &candidate_d2);
+        let (candidate_nn, candidate_d2) = nearest(&candidate_moved);
+        let candidate_planes = on_planes(&candidate_moved, &candidate_nn);
         let taken = match scene {
             None => {
                 let g = laid(&candidate_d2);
@@ -419,29 +425,27 @@ pub(crate) fn search(
 /// target point and to the plane at that point, or `None` beyond the target's coverage.
 type Laid = Option<(f64, f64)>;
 
-/// Each `moved` source point's distances ([`Laid`]; `d2`: squared to its nearest target point)
-/// within `cover` of the target.
+/// Each `moved` source point's distances ([`Laid`]) within `cover` of the target, from its
+/// nearest target point `nn` (squared distance, index).
 fn plane_distances(
     planes: &TargetPlanes,
     target: &[[f32; 3]],
     tree: &Tree,
     moved: &[[f32; 3]],
-    d2: &[f32],
+    nn: &[(f32, u32)],
     cover: f64,
 ) -> Vec<Laid> {
     let cover2 = cover * cover;
     moved
         .par_iter()
-        .zip(d2)
-        .map(|(x, &d)| {
-            if d as f64 > cover2 {
+        .zip(nn)
+        .map(|(x, &(d2, i))| {
+            if d2 as f64 > cover2 {
                 return None;
             }
-            let x = Point3::new(x[0] as f64, x[1] as f64, x[2] as f64);
-            let mut cache = PlaneCache::default();
-            planes
-                .residual(target, tree, &x, cover2, &mut cache)
-                .map(|(r, _)| ((d as f64).sqrt(), r.abs()))
+            let (mean, n) = planes.plane(target, tree, i as usize)?;
+            let x = Vector3::new(x[0] as f64, x[1] as f64, x[2] as f64);
+            Some(((d2 as f64).sqrt(), n.dot(&(x - mean)).abs()))
         })
         .collect()
 }

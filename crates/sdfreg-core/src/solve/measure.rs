@@ -27,6 +27,17 @@ pub(crate) fn nearest_distances2(tree: &Tree, points: &[[f32; 3]]) -> Vec<f32> {
         .collect()
 }
 
+/// Each of `points`' nearest target point (`tree`): its squared distance and its index.
+pub(crate) fn nearest_points(tree: &Tree, points: &[[f32; 3]]) -> Vec<(f32, u32)> {
+    points
+        .par_iter()
+        .map(|x| {
+            let nn = tree.nearest_one::<SquaredEuclidean>(x);
+            (nn.distance, nn.item)
+        })
+        .collect()
+}
+
 /// [`inlier_stats`] from the points' squared nearest distances `d2`
 /// ([`nearest_distances2`]).
 pub(crate) fn inlier_stats_of(d2: &[f32], thr2: f64) -> (f64, f64) {
