@@ -316,6 +316,17 @@ fn bad_input_is_a_typed_error() {
             ..
         })
     ));
+    // A target of far fewer points than the source is registered the other way round
+    // (`swap_ratio`); its error still names it the target.
+    let few = vec![Point3::new(1.0, 2.0, 3.0); 12];
+    assert!(good.len() >= 4 * few.len());
+    assert!(matches!(
+        register(&good, &few, None, &s),
+        Err(Error::NoExtent {
+            role: Role::Target,
+            ..
+        })
+    ));
     let mut bad = s.clone();
     bad.mlp.width = 0;
     assert!(matches!(

@@ -127,6 +127,11 @@ pub struct Common {
     /// Target points the SDF fit uses at most; larger targets are subsampled (seeded) [default: 100000].
     #[arg(long)]
     pub max_target_points: Option<usize>,
+    /// A target cloud with at least this many times fewer points than the source (and at least
+    /// half its size) is registered the other way round, the denser cloud as Φ's, and the
+    /// result inverted (`stages.swapped` in the JSON); 0 never [default: 4].
+    #[arg(long)]
+    pub swap_ratio: Option<f64>,
     /// Kind of Φ: `global` (one MLP: objects), `local` (the MLP plus a sparse voxel grid of
     /// corrections near the target's points: rooms, streets), or `auto` (local when the
     /// target's largest side is at least 400 point spacings, `LocalSettings.auto_ratio`)
@@ -206,6 +211,7 @@ impl Common {
         set(&mut s.fit.model_prefit_steps, self.model_prefit_steps);
         set(&mut s.max_source_points, self.max_source_points);
         set(&mut s.max_target_points, self.max_target_points);
+        s.swap_ratio = self.swap_ratio.unwrap_or(s.swap_ratio);
         s.multistart.offset = self.multistart_offset.unwrap_or(s.multistart.offset);
         s.multistart.tie = self.multistart_tie.unwrap_or(s.multistart.tie);
         if let Some(name) = &self.model_kind {

@@ -105,6 +105,7 @@ pub use fit::settings::FitSettings;
 pub use model::mesh_model::MeshModel;
 pub use model::sdf_model::SdfModel;
 pub use pipeline::coarse_to_fine::CoarseToFineSettings;
+pub use pipeline::direction::SWAP_MIN_EXTENT;
 pub use pipeline::multistart::MultistartSettings;
 pub use pipeline::polish::{PolishSettings, SNAP_RATIO};
 pub use pipeline::register::{register, register_with_progress};
@@ -115,7 +116,7 @@ pub use pipeline::report::{
 };
 pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
 pub use pipeline::scale::{ScaleSettings, DEFAULT_RANGE, UNIT_FACTORS};
-pub use pipeline::settings::{RegisterSettings, MIN_POINTS};
+pub use pipeline::settings::{RegisterSettings, DEFAULT_SWAP_RATIO, MIN_POINTS};
 pub use pipeline::shift_search::ShiftSearchSettings;
 pub use solve::degeneracy::{Degeneracy, FreeMotion, MotionKind, FREE_MOTION_RATIO};
 pub use solve::kernel::{Kernel, MAD_TO_SIGMA, SCALE_SIGMAS};

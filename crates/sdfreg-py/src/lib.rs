@@ -84,6 +84,9 @@ use settings::{
 ///     scale_range: ``(min, max)``: the scale (target units per source unit) stays within
 ///         them; needs ``scale=True``. Default 0.1 to 10 times the unit factor (1, 1000 or
 ///         0.001) the clouds' extents point to.
+///     swap_ratio: A cloud target with at least this many times fewer points than the source
+///         (and at least half its size) is registered the other way round, the denser cloud as
+///         Φ's, and the result inverted (``stages["swapped"]``); 0 never. Default 4.
 ///     model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
 ///         ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
 ///         points: rooms, streets), or ``"auto"`` (local when the target's largest side is at

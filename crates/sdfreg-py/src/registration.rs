@@ -124,8 +124,10 @@ impl PyRegistration {
     }
 
     /// What each stage did, as a dict: ``initial``, ``coarse_to_fine``, ``final_lm``,
-    /// ``robust``, ``polish``, ``shift_search`` (each stage's ``change``: ``rotation_deg`` and
-    /// ``translation``, how far it moved the source).
+    /// ``robust``, ``polish``, ``shift_search``, ``rescue`` (each stage's ``change``:
+    /// ``rotation_deg`` and ``translation``, how far it moved the source), and ``swapped``
+    /// (True when the target was registered onto the source and the result inverted:
+    /// ``swap_ratio``).
     #[getter]
     fn stages<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let json = serde_json::to_string(&self.0.stages)

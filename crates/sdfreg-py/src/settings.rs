@@ -715,6 +715,7 @@ use Caller::{Align, Fit, Register, RegisterMany, Track};
 const ALL: &[Caller] = &[Register, RegisterMany, Track, Fit, Align];
 const REGISTER: &[Caller] = &[Register, RegisterMany, Align];
 const SIMILARITY: &[Caller] = &[Register, RegisterMany];
+const FULL_CALL: &[Caller] = &[Register, RegisterMany];
 const SOURCE: &[Caller] = &[Register, RegisterMany, Track, Align];
 const TARGET: &[Caller] = &[Register, RegisterMany, Fit, Align];
 const ONE_CALL: &[Caller] = &[Register, Track, Fit, Align];
@@ -762,6 +763,7 @@ pub const KEYWORDS: &[Keyword] = keywords! {
     model: TARGET, some;
     scale: SIMILARITY, some;
     scale_range: SIMILARITY, some;
+    swap_ratio: FULL_CALL, some;
 };
 
 /// The settings keywords of a call, before they are applied to the preset: each `None` keeps
@@ -786,6 +788,7 @@ pub struct SettingsArgs<'py> {
     pub model: Option<String>,
     pub scale: Option<bool>,
     pub scale_range: Option<(f64, f64)>,
+    pub swap_ratio: Option<f64>,
 }
 
 impl<'py> SettingsArgs<'py> {
@@ -847,6 +850,7 @@ impl<'py> SettingsArgs<'py> {
         }
         s.inlier_distance = self.inlier_distance.unwrap_or(s.inlier_distance);
         s.free_motion_ratio = self.free_motion_ratio.unwrap_or(s.free_motion_ratio);
+        s.swap_ratio = self.swap_ratio.unwrap_or(s.swap_ratio);
         s.mlp = self.mlp.unwrap_or(s.mlp);
         s.fit = self.fit.unwrap_or(s.fit);
         s.multistart = self.multistart.unwrap_or(s.multistart);

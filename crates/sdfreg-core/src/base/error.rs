@@ -94,6 +94,43 @@ pub enum Error {
 }
 
 impl Error {
+    /// The error with source and target exchanged: for a registration run the other way round
+    /// ([`crate::RegisterSettings::swap_ratio`]), said of the clouds as the caller gave them.
+    pub(crate) fn with_roles_swapped(self) -> Self {
+        let other = |role| match role {
+            Role::Source => Role::Target,
+            Role::Target => Role::Source,
+        };
+        match self {
+            Error::TooFewPoints { role, found, min } => Error::TooFewPoints {
+                role: other(role),
+                found,
+                min,
+            },
+            Error::TooFewBesidesMissingReturns {
+                role,
+                found,
+                missing,
+                min,
+            } => Error::TooFewBesidesMissingReturns {
+                role: other(role),
+                found,
+                missing,
+                min,
+            },
+            Error::NonFinite { role, index, point } => Error::NonFinite {
+                role: other(role),
+                index,
+                point,
+            },
+            Error::NoExtent { role, extent } => Error::NoExtent {
+                role: other(role),
+                extent,
+            },
+            e => e,
+        }
+    }
+
     /// The cloud the error is about, when it is about one.
     pub fn role(&self) -> Option<Role> {
         match self {

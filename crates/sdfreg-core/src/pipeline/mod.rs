@@ -2,6 +2,7 @@
 //! with its settings beside it, [`settings::RegisterSettings`] gathering them, and the report
 //! of what each did.
 //!
+//! - [`direction`]: stage 0 of a full call, which cloud Φ represents;
 //! - [`target`]: stages 1–2 for the target (unit frame, pre-fit of Φ);
 //! - [`surface`]: the target as the stages see it, fitted or frozen;
 //! - [`multistart`] (stage 3), [`coarse_to_fine`] (stages 4–5), [`rerun`] (stage 6, the robust re-run; [`robust`]: the kernel's
@@ -12,6 +13,7 @@
 //! - [`register`]: the entry points, one line per stage.
 
 pub(crate) mod coarse_to_fine;
+pub(crate) mod direction;
 pub(crate) mod multistart;
 pub(crate) mod polish;
 pub(crate) mod register;

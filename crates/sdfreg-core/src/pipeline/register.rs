@@ -2,6 +2,8 @@
 //!
 //! [`register`] moves the source onto the target's neural SDF Φ in these stages, each a function
 //! of its own:
+//! 0. **direction** — a source with many times the target's points is registered the other
+//!    way round, the denser cloud as Φ's, and the result inverted ([`crate::pipeline::direction`]);
 //! 1. **normalise** — validate; both clouds into the target's unit frame (bounding-box centre,
 //!    largest side 1), subsampled to [`RegisterSettings::max_source_points`] /
 //!    [`RegisterSettings::max_target_points`] ([`crate::geometry::cloud`]);
@@ -40,6 +42,7 @@ use crate::field::baked::{BakedGrid, BAKED_HALF_EXTENT};
 use crate::field::Field;
 use crate::geometry::cloud::{scaled_f32, subsample, usable, Normalization};
 use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
+use crate::pipeline::direction::{invert, swaps};
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
 use crate::pipeline::registration::{measure, Registration, Trace};
@@ -77,16 +80,34 @@ pub fn register_with_progress(
     let source = usable(source, Role::Source, MIN_POINTS)?;
     let target = usable(target, Role::Target, MIN_POINTS)?;
     let mut r = in_pool(settings.threads, || {
-        let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-        let source = subsample(&source, settings.max_source_points, &mut rng);
-        let prefit_start = Instant::now();
-        let (norm, fitter) = prefit(&target, settings, false, &mut rng, progress)?;
-        let prefit_time = prefit_start.elapsed();
-        let mut r = register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)?;
-        r.stage_times.prefit = prefit_time;
-        Ok::<_, Error>(r)
+        // Stage 0: the denser cloud as the target ([`crate::pipeline::direction`]).
+        if swaps(settings, &source, &target) {
+            let init = init.map(|t| t.inverse());
+            let back = one_way(&target, &source, init.as_ref(), settings, progress)
+                .map_err(Error::with_roles_swapped)?;
+            return invert(back, &source, &target, settings);
+        }
+        one_way(&source, &target, init, settings, progress)
     })??;
     r.time = start.elapsed();
+    Ok(r)
+}
+
+/// Stages 1–9 of a full call, `source` onto `target` (usable points).
+fn one_way(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+    init: Option<&Isometry3<f64>>,
+    settings: &RegisterSettings,
+    progress: &(dyn Fn(Stage) + Sync),
+) -> Result<Registration, Error> {
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let source = subsample(source, settings.max_source_points, &mut rng);
+    let prefit_start = Instant::now();
+    let (norm, fitter) = prefit(target, settings, false, &mut rng, progress)?;
+    let prefit_time = prefit_start.elapsed();
+    let mut r = register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)?;
+    r.stage_times.prefit = prefit_time;
     Ok(r)
 }
 

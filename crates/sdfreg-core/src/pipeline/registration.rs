@@ -158,6 +158,7 @@ pub(crate) fn measure<S: Surface>(
             change: change(&t.polished.pose, &t.searched.pose),
         },
         rescue: RescueReport::NotTried,
+        swapped: false,
     };
     let q = quality(
         fit.phi(),

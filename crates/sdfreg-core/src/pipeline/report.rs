@@ -228,6 +228,11 @@ pub struct Stages {
     /// The multi-start's rescue of a given guess.
     #[serde(default)]
     pub rescue: RescueReport,
+    /// Whether the call registered the target onto the source and returned the inverse (a
+    /// source with many times the target's points, [`crate::RegisterSettings::swap_ratio`]):
+    /// then the reports above are of that run.
+    #[serde(default)]
+    pub swapped: bool,
 }
 
 /// Wall time of each stage of a registration ([`crate::Registration::stage_times`]): where the

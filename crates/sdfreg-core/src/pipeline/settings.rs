@@ -28,6 +28,13 @@ use crate::solve::lm::LmSettings;
 /// Fewest points accepted in either cloud.
 pub const MIN_POINTS: usize = 10;
 
+/// Default [`RegisterSettings::swap_ratio`].
+pub const DEFAULT_SWAP_RATIO: f64 = 4.0;
+
+fn default_swap_ratio() -> f64 {
+    DEFAULT_SWAP_RATIO
+}
+
 /// All settings of a registration. Lengths marked "normalised" are relative to the target's
 /// largest bounding-box side (1 = the whole target).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -62,6 +69,15 @@ pub struct RegisterSettings {
     /// A source point counts as an inlier (fitness, inlier RMSE) when its nearest target point
     /// is closer than this, normalised units. Default 0.02.
     pub inlier_distance: f64,
+    /// A full call ([`crate::register()`]) registers the target onto the source and returns the
+    /// inverse when the source has at least this many times the target's points (usable
+    /// points, before subsampling) and its largest bounding-box side is at least
+    /// [`crate::SWAP_MIN_EXTENT`] of the target's: Φ, the polish's planes and the shift search's
+    /// shares are then made from the denser cloud, the fitness still measured as without the
+    /// swap ([`crate::Stages::swapped`]). 0 = never; otherwise at least 1. Rigid registration only.
+    /// Default 4.
+    #[serde(default = "default_swap_ratio")]
+    pub swap_ratio: f64,
     /// Seed of every random choice; equal seeds give identical results. Default 0.
     pub seed: u64,
     /// Worker threads, 0 = one per core. The result does not depend on it. Default 0.
@@ -84,6 +100,7 @@ impl Default for RegisterSettings {
             max_source_points: 4096,
             max_target_points: 100_000,
             inlier_distance: 0.02,
+            swap_ratio: DEFAULT_SWAP_RATIO,
             seed: 0,
             threads: 0,
         }
@@ -244,7 +261,11 @@ impl RegisterSettings {
         check::count_at_least("max_source_points", self.max_source_points, MIN_POINTS)?;
         check::count_at_least("max_target_points", self.max_target_points, MIN_POINTS)?;
         check::fraction_below_one("free_motion_ratio", self.free_motion_ratio)?;
-        check::positive("inlier_distance", self.inlier_distance)
+        check::positive("inlier_distance", self.inlier_distance)?;
+        if self.swap_ratio != 0.0 {
+            check::at_least("swap_ratio", self.swap_ratio, 1.0)?;
+        }
+        Ok(())
     }
 }
 
@@ -289,5 +310,12 @@ mod tests {
         let mut s = RegisterSettings::default();
         s.polish.neighbours = 2;
         assert!(message(&s).contains("`polish.neighbours`"));
+        let mut s = RegisterSettings {
+            swap_ratio: 0.5,
+            ..Default::default()
+        };
+        assert!(message(&s).contains("`swap_ratio`: must be a finite number ≥ 1, got 0.5"));
+        s.swap_ratio = 0.0;
+        s.validate().unwrap();
     }
 }

@@ -507,9 +507,12 @@ class Registration:
         (``stop_reason``), ``robust`` (``kind``: ``"off"``, ``"from_start"``, ``"not_needed"``,
         ``"rerun_kept"`` or ``"rerun_rejected"``, with the fitnesses), ``polish`` (``result``:
         ``"off"``, ``"applied"``, ``"snapped"`` or ``"undone"``; ``iterations``,
-        ``stop_reason``) and ``shift_search`` (``peaks``, ``taken``, ``fitness_gain``). Each
-        stage that can move the pose has a ``change``: ``rotation_deg`` and ``translation``
-        (RMS displacement of the source points, the clouds' units)."""
+        ``stop_reason``), ``shift_search`` (``peaks``, ``taken``, ``fitness_gain``) and
+        ``rescue`` (``kind``: ``"not_tried"``, ``"kept"`` or ``"rejected"``). Each stage that
+        can move the pose has a ``change``: ``rotation_deg`` and ``translation`` (RMS
+        displacement of the source points, the clouds' units). ``swapped``: True when the
+        target was registered onto the source and the result inverted (``swap_ratio``); the
+        stages are then that run's."""
     @property
     def time_s(self) -> float:
         """Wall time of the registration, seconds."""
@@ -556,10 +559,13 @@ class _ScaleKeywords(TypedDict, total=False):
     scale: Optional[bool]
     scale_range: Optional[Tuple[float, float]]
 
+class _FullCallKeywords(TypedDict, total=False):
+    swap_ratio: Optional[float]
+
 class _AlignKeywords(_SeedKeyword, _ThreadsKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, total=False):
     """``align``'s settings of its pairwise registrations."""
 
-class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, _ScaleKeywords, total=False):
+class _ManyKeywords(_SeedKeyword, _SourceKeywords, _TargetKeywords, _PipelineKeywords, _ScaleKeywords, _FullCallKeywords, total=False):
     """``register_many``'s settings (its ``threads`` is an argument of its own)."""
 
 class _RegisterKeywords(_ManyKeywords, _ThreadsKeyword, total=False):
@@ -635,6 +641,9 @@ def register(
         scale_range: ``(min, max)``: the scale (target units per source unit) stays within
             them; needs ``scale=True``. Default 0.1 to 10 times the unit factor (1, 1000 or
             0.001) the clouds' extents point to.
+        swap_ratio: A cloud target with at least this many times fewer points than the source
+            (and at least half its size) is registered the other way round, the denser cloud as
+            Φ's, and the result inverted (``stages["swapped"]``); 0 never. Default 4.
         model: Kind of Φ fitted to a cloud target: ``"global"`` (one MLP: objects),
             ``"local"`` (the MLP plus a sparse voxel grid of corrections near the target's
             points: rooms, streets), or ``"auto"`` (local when the target's largest side is at
