@@ -254,8 +254,8 @@ def test_stages_say_what_each_stage_did(pair) -> None:
     r = sdfreg.register(source, target, **QUICK)
     st = r.stages
     assert list(st) == ["initial", "coarse_to_fine", "final_lm", "robust", "polish", "shift_search",
-                        "rescue"]
-    assert st["rescue"] == {"kind": "not_tried"}
+                        "rescue", "swapped"]
+    assert st["rescue"] == {"kind": "not_tried"} and st["swapped"] is False
     assert st["initial"]["starts"] == 168 and not st["initial"]["given"]
     # The source is the target's own sample, moved: the polish snaps it onto those points.
     assert st["polish"]["result"] == "snapped" and r.stop_reason == st["polish"]["stop_reason"]
@@ -288,3 +288,20 @@ def test_same_numbers_as_the_cli_for_the_same_seed(tmp_path: Path) -> None:
     assert from_cli["fitness"] == result.fitness
     assert from_cli["stop_reason"] == result.stop_reason
     assert from_cli["stages"] == result.stages
+
+
+def test_a_source_far_denser_than_the_target_is_registered_the_other_way_round(pair) -> None:
+    # 1024 source points onto 200 of the target's: the target is registered onto the source and
+    # the result inverted; the fitness is still the source's against the target.
+    source, target, truth = pair
+    sparse = target[::5][:200]
+    r = sdfreg.register(source, sparse, **QUICK)
+    assert r.stages["swapped"] is True
+    back = sdfreg.register(sparse, source, swap_ratio=0, **QUICK)
+    assert not back.stages["swapped"]
+    np.testing.assert_allclose(r.transformation, np.linalg.inv(back.transformation), atol=1e-12)
+    kept = sdfreg.register(source, sparse, swap_ratio=0, **QUICK)
+    assert not kept.stages["swapped"]
+    assert abs(r.fitness - kept.fitness) < 0.2
+    with pytest.raises(ValueError, match="swap_ratio"):
+        sdfreg.register(source, sparse, swap_ratio=0.5, **QUICK)
