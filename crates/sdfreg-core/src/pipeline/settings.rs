@@ -262,8 +262,12 @@ impl RegisterSettings {
         check::count_at_least("max_target_points", self.max_target_points, MIN_POINTS)?;
         check::fraction_below_one("free_motion_ratio", self.free_motion_ratio)?;
         check::positive("inlier_distance", self.inlier_distance)?;
-        if self.swap_ratio != 0.0 {
-            check::at_least("swap_ratio", self.swap_ratio, 1.0)?;
+        let r = self.swap_ratio;
+        if r != 0.0 && !(r >= 1.0 && r.is_finite()) {
+            return Err(Error::InvalidSetting {
+                name: "swap_ratio",
+                reason: format!("must be 0 (never swap) or a finite number ≥ 1, got {r}"),
+            });
         }
         Ok(())
     }
@@ -314,7 +318,8 @@ mod tests {
             swap_ratio: 0.5,
             ..Default::default()
         };
-        assert!(message(&s).contains("`swap_ratio`: must be a finite number ≥ 1, got 0.5"));
+        assert!(message(&s)
+            .contains("`swap_ratio`: must be 0 (never swap) or a finite number ≥ 1, got 0.5"));
         s.swap_ratio = 0.0;
         s.validate().unwrap();
     }
