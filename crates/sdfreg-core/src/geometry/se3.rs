@@ -7,11 +7,13 @@
 //! registration). This is the paper's eq. 13.
 //!
 //! Entry points: [`hat`], [`vee`], [`exp_so3`], [`log_so3`], [`exp_se3`], [`log_se3`],
+//! [`adjoint`],
 //! [`rotation_angle`] (geodesic distance between rotations), [`isometry_from_matrix`] (a user's
 //! 4×4 matrix checked to be rigid).
 
 use nalgebra::{
-    Isometry3, Matrix3, Matrix4, Rotation3, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
+    Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, SVector, Translation3, UnitQuaternion,
+    Vector3, Vector6,
 };
 
 /// How far a user's 3×3 block may be from a rotation (`|RᵀR − I|` entries, `|det R − 1|`), and
@@ -135,6 +137,19 @@ fn left_jacobian(w: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::identity() + b * k + c * k * k
 }
 
+/// The adjoint of `t` on twists `[ω; v]`: `exp(Ad(t) ξ) = t exp(ξ) t⁻¹`, so a left
+/// perturbation of `t⁻¹` is a left perturbation of `t` by `−Ad(t) ξ`
+/// (`exp(ξ) t⁻¹ = (exp(−Ad(t) ξ) t)⁻¹`). `Ad(t) = [[R, 0], [[t]ₓ R, R]]`.
+pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
+    let r: Matrix3<f64> = t.rotation.to_rotation_matrix().into_inner();
+    let mut a = Matrix6::zeros();
+    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    a.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    a.fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&(hat(&t.translation.vector) * r));
+    a
+}
+
 /// The rigid motion `exp(ξ^)` of a twist `ξ = [ω; v]` (radians; length units of `v`).
 pub fn exp_se3(xi: &Vector6<f64>) -> Isometry3<f64> {
     let w = Vector3::new(xi[0], xi[1], xi[2]);
@@ -199,6 +214,19 @@ pub fn rotation_angle(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
 mod tests {
     use super::*;
     use std::f64::consts::PI;
+
+    #[test]
+    fn the_adjoint_moves_a_twist_between_frames() {
+        let t = exp_se3(&Vector6::new(0.13, -0.065, 0.2, 1.3, 0.65, -0.26));
+        let xi = Vector6::new(0.01, -0.02, 0.015, 0.03, 0.0, -0.01);
+        let lhs = exp_se3(&(adjoint(&t) * xi));
+        let rhs = t * exp_se3(&xi) * t.inverse();
+        assert!((lhs.to_homogeneous() - rhs.to_homogeneous()).amax() < 1e-12);
+        // A left perturbation of the inverse is one of `t` by −Ad(t) ξ.
+        let of_inverse = exp_se3(&xi) * t.inverse();
+        let via = (exp_se3(&-(adjoint(&t) * xi)) * t).inverse();
+        assert!((of_inverse.to_homogeneous() - via.to_homogeneous()).amax() < 1e-12);
+    }
 
     #[test]
     fn a_similarity_matrix_splits_into_its_rigid_part_and_scale() {

@@ -12,12 +12,13 @@
 //! direction), [`crate::register()`] registers the target onto the source and returns the
 //! inverse ([`invert`]): `t_target_source` still maps the source into the target.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3};
+use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::Error;
 use crate::geometry::cloud::{bounding_box, subsample, transformed_f32, Normalization};
+use crate::geometry::se3::adjoint;
 use crate::geometry::tree::build_tree;
 use crate::pipeline::registration::Registration;
 use crate::pipeline::settings::RegisterSettings;
@@ -72,6 +73,7 @@ pub(crate) fn invert(
     let unit: Vec<Point3<f64>> = source.iter().map(|p| norm.to_unit_f64(p)).collect();
     let moved = transformed_f32(&unit, &norm.pose_to_unit(&pose));
     let (fitness, rms) = inlier_stats(&tree, &moved, s.inlier_distance.powi(2));
+    // The swapped run's left perturbation of `t_source_target` is ours by −Ad ξ.
     let adjoint = adjoint(&t_source_target);
     let mut degeneracy = back.degeneracy;
     degeneracy.free = degeneracy
@@ -98,47 +100,4 @@ pub(crate) fn invert(
         stage_times,
         ..back
     })
-}
-
-/// The adjoint of `t` on twists `[ω; v]`: a left perturbation `exp(ξ) t` equals `t exp(Ad⁻¹ ξ)`
-/// and `exp(ξ) t⁻¹ = t⁻¹ exp(Ad ξ)`; `Ad = [[R, 0], [[t]ₓ R, R]]`.
-fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
-    let r: Matrix3<f64> = *t.rotation.to_rotation_matrix().matrix();
-    let tx = t.translation.vector.cross_matrix();
-    let mut ad = Matrix6::zeros();
-    ad.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    ad.fixed_view_mut::<3, 3>(3, 0).copy_from(&(tx * r));
-    ad
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use nalgebra::{Translation3, UnitQuaternion, Vector3, Vector6};
-
-    /// The residual changes of a left perturbation of the inverse pose, seen through the
-    /// adjoint, equal those of the matching perturbation of the pose (to first order).
-    #[test]
-    fn the_adjoint_carries_a_left_perturbation_over_to_the_inverse() {
-        let t = Isometry3::from_parts(
-            Translation3::new(3.0, -2.0, 5.0),
-            UnitQuaternion::from_euler_angles(0.4, -0.7, 1.1),
-        );
-        let xi = Vector6::new(1e-6, -2e-6, 3e-6, 4e-6, 1e-6, -5e-6);
-        let exp = |xi: &Vector6<f64>| {
-            Isometry3::new(
-                Vector3::new(xi[3], xi[4], xi[5]),
-                Vector3::new(xi[0], xi[1], xi[2]),
-            )
-        };
-        // exp(ξ) t⁻¹ = t⁻¹ exp(Ad ξ): the inverse's left perturbation is the original's
-        // right one, i.e. t's left perturbation by −Ad ξ (to first order).
-        let left = exp(&xi) * t.inverse();
-        let via = (exp(&-(adjoint(&t) * xi)) * t).inverse();
-        let p = Point3::new(0.3, 1.7, -2.2);
-        let moved = (left * p - t.inverse() * p).norm();
-        let off = (left * p - via * p).norm();
-        assert!(off < 1e-9 && moved > 1e-5, "moved {moved}, off {off}");
-    }
 }

@@ -12,9 +12,10 @@
 //! forty lines. The Rust factor-graph crates would add a dependency (and their own pose types)
 //! for no gain at this size.
 
-use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Matrix6, Vector6};
+use nalgebra::{DMatrix, DVector, Isometry3, Matrix6, Vector6};
 
-use crate::geometry::se3::{exp_se3, hat, log_se3};
+pub use crate::geometry::se3::adjoint;
+use crate::geometry::se3::{exp_se3, log_se3};
 
 /// One relative measurement.
 #[derive(Clone, Debug)]
@@ -27,17 +28,6 @@ pub struct GraphEdge {
     pub z: Isometry3<f64>,
     /// The information of the left error in scan `i`'s frame.
     pub information: Matrix6<f64>,
-}
-
-/// The adjoint of `t` on twists `[ω; v]`: `exp(Ad(T) ξ) = T exp(ξ) T⁻¹`.
-pub fn adjoint(t: &Isometry3<f64>) -> Matrix6<f64> {
-    let r: Matrix3<f64> = t.rotation.to_rotation_matrix().into_inner();
-    let mut a = Matrix6::zeros();
-    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    a.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-    a.fixed_view_mut::<3, 3>(3, 0)
-        .copy_from(&(hat(&t.translation.vector) * r));
-    a
 }
 
 /// The edge's residual at `poses`.
@@ -164,15 +154,6 @@ mod tests {
 
     fn pose(k: f64) -> Isometry3<f64> {
         exp_se3(&Vector6::new(0.1 * k, -0.05 * k, 0.2, k, 0.5 * k, -0.2 * k))
-    }
-
-    #[test]
-    fn the_adjoint_moves_a_twist_between_frames() {
-        let t = pose(1.3);
-        let xi = Vector6::new(0.01, -0.02, 0.015, 0.03, 0.0, -0.01);
-        let lhs = exp_se3(&(adjoint(&t) * xi));
-        let rhs = t * exp_se3(&xi) * t.inverse();
-        assert!((lhs.to_homogeneous() - rhs.to_homogeneous()).amax() < 1e-12);
     }
 
     #[test]
