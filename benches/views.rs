@@ -8,6 +8,7 @@
 //!     cargo bench --bench views -- --write DIR  # also DIR/scan_NNN.ply and DIR/truth.json
 //!     cargo bench --bench views -- --joint 0    # without the joint refinement
 //!     cargo bench --bench views -- --consensus 30  # with the multi-view refinement
+//!     cargo bench --bench views -- --consensus 30 --consensus-points 16384  # its sample per scan
 //!     cargo bench --bench views -- --reference-consensus ../shared/data
 //!     cargo bench --bench views -- --range-noise 0   # the sensor's range noise, metres
 //!
@@ -76,6 +77,9 @@ fn main() {
         }),
         consensus: ConsensusSettings {
             iterations: arg("--consensus").map_or(0, |v| v.parse().expect("--consensus N")),
+            points: arg("--consensus-points").map_or(ConsensusSettings::default().points, |v| {
+                v.parse().expect("--consensus-points N")
+            }),
             ..Default::default()
         },
         ..Default::default()

@@ -35,7 +35,7 @@ use crate::settings::{Caller, SettingsArgs};
 ///     seed: Seed of every random choice.
 ///     threads: Worker threads; 0 = one per core.
 ///     preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
-///         the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points).
+///         the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points).
 ///
 /// The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 ///

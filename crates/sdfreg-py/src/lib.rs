@@ -58,7 +58,7 @@ use settings::{
 ///         refined.
 ///     preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
 ///         robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
-///         object's polish pass ending when its steps stop shrinking, against planes at the target's points). The arguments below override it; None keeps the
+///         object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points). The arguments below override it; None keeps the
 ///         preset's value.
 ///     robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
 ///         ``"on"``, ``"off"``, or a :class:`RobustSettings`.

@@ -418,9 +418,12 @@ settings_class! {
     ///     patience: An object's pass also ends when its step has not fallen below its smallest
     ///         for this many iterations; 0 never (the ``"views"`` preset: 10).
     ///     scene_tolerance_spacings: When Φ is local (a scene), a pass has converged when its
-    ///         step is below this many target point spacings.
+    ///         step is below this many target point spacings (the ``"views"`` preset: 0.01).
     ///     scene_kernel_floor_spacings: When Φ is local (a scene), the robust kernel's scale is
     ///         at least this many target point spacings (noise-free scans); 0 none.
+    ///     scene_points: When Φ is local (a scene), the polish moves this many of the source's
+    ///         points, drawn apart from the registration's own; 0 (or no more than
+    ///         ``max_source_points``) polishes those (the ``"views"`` preset: 16384).
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -436,6 +439,7 @@ settings_class! {
         patience: i64 = 0,
         scene_tolerance_spacings: f64 = 0.1,
         scene_kernel_floor_spacings: f64 = 1.0,
+        scene_points: i64 = 0,
     }
 }
 

@@ -156,6 +156,17 @@ pub struct PolishSettings {
     /// pair 2° off). Noisy scans' residuals keep the scale above one spacing; 0 disables.
     #[serde(default = "default_scene_kernel_floor_spacings")]
     pub scene_kernel_floor_spacings: f64,
+    /// When Φ is local (a scene), the polish moves this many of the source's points, drawn
+    /// apart from the registration's own [`crate::RegisterSettings::max_source_points`] (all of
+    /// them when it has fewer); 0, or no more than the registration's own, polishes those.
+    /// Default 0; [`crate::RegisterSettings::views`] sets 16384. Where the scan's surfaces pin a
+    /// direction with few points (a room's height: its floor is seen only in the corners, its
+    /// ceiling far off, 3–5 % of the returns), the polish's answer along it is as good as the
+    /// few of them drawn: on the procedural room (1 cm range noise), a pair's height moved by
+    /// 3.6 mm (standard deviation) from one draw of 4096 points to the next, 0.4 mm with 16384.
+    /// The polish's time grows with the points.
+    #[serde(default)]
+    pub scene_points: usize,
 }
 
 impl Default for PolishSettings {
@@ -175,6 +186,7 @@ impl Default for PolishSettings {
             patience: 0,
             scene_tolerance_spacings: default_scene_tolerance_spacings(),
             scene_kernel_floor_spacings: default_scene_kernel_floor_spacings(),
+            scene_points: 0,
         }
     }
 }

@@ -14,7 +14,8 @@
 //! 5. **final LM** on the frozen Φ until converged;
 //! 6. **robust re-run** when needed — [`crate::RobustMode::Auto`] redoes a poorly fitting
 //!    least-squares result with the Geman–McClure kernel ([`crate::pipeline::rerun`]);
-//! 7. **polish** — robust point-to-plane steps against the target points ([`crate::pipeline::polish`]);
+//! 7. **polish** — robust point-to-plane steps against the target points ([`crate::pipeline::polish`];
+//!    a scene's with more of the source's points when [`crate::PolishSettings::scene_points`] asks);
 //! 8. **shift search** — translations that lay clearly more source points onto the target, each
 //!    polished, kept on a fitness gain ([`crate::pipeline::shift_search`]);
 //! 9. **measure** — fitness, inlier RMSE, JᵀJ and the free motions, in the user's frame
@@ -102,11 +103,13 @@ fn one_way(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    let source = subsample(source, settings.max_source_points, &mut rng);
+    let drawn = subsample(source, settings.max_source_points, &mut rng);
     let prefit_start = Instant::now();
     let (norm, fitter) = prefit(target, settings, false, &mut rng, progress)?;
     let prefit_time = prefit_start.elapsed();
-    let mut r = register_drawn(&norm, &fitter, &source, rng, init, settings, true, progress)?;
+    let mut r = register_drawn(
+        &norm, &fitter, &drawn, source, rng, init, settings, true, progress,
+    )?;
     r.stage_times.prefit = prefit_time;
     Ok(r)
 }
@@ -141,9 +144,9 @@ pub(crate) fn against_in_pool<S: Surface>(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
-    let source = subsample(source, settings.max_source_points, &mut rng);
+    let drawn = subsample(source, settings.max_source_points, &mut rng);
     register_drawn(
-        norm, surface, &source, rng, init, settings, refine, progress,
+        norm, surface, &drawn, source, rng, init, settings, refine, progress,
     )
 }
 
@@ -161,12 +164,15 @@ pub(crate) fn check_settings(
 
 /// Stages 3–9 for the already subsampled `source` against `surface` (the target in the unit
 /// frame of `norm`), `rng` being the registration's random stream after the subsampling; the
-/// robust re-run (stage 6) starts again from the same surface and stream.
+/// robust re-run (stage 6) starts again from the same surface and stream. `dense` is the usable
+/// source the subsample was drawn from: a scene's polish may move more of its points
+/// ([`crate::PolishSettings::scene_points`]).
 #[allow(clippy::too_many_arguments)]
 fn register_drawn<S: Surface>(
     norm: &Normalization,
     surface: &S,
     source: &[Point3<f64>],
+    dense: &[Point3<f64>],
     rng: ChaCha8Rng,
     init: Option<&Isometry3<f64>>,
     s: &RegisterSettings,
@@ -174,7 +180,8 @@ fn register_drawn<S: Surface>(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     let start = Instant::now();
-    let unit = in_unit_frame(norm, source)?;
+    let mut unit = in_unit_frame(norm, source)?;
+    unit.polished = polish_points(norm, surface.is_local(), dense, source, s);
     // Baked at most once: the robust re-run and the rescue's run start from the same Φ.
     let grid = OnceLock::new();
     let run_from = |init: Option<&Isometry3<f64>>, s: &RegisterSettings, policy| {
@@ -349,7 +356,10 @@ fn run<S: Surface>(
         )
     };
     let free_scale = lm.scale.map(|d| (d.s, (d.min, d.max)));
-    let polished = polish_with(&unit.source, &lm.pose, free_scale);
+    let polished = match (&unit.polished, free_scale) {
+        (Some(dense), None) => polish_with(dense, &lm.pose, None),
+        _ => polish_with(&unit.source, &lm.pose, free_scale),
+    };
     lap(&mut times.polish);
     // With a scale, the search moves the source at the polished scale.
     let source: Cow<'_, [Point3<f64>]> = match free_scale {
@@ -393,6 +403,31 @@ struct Unit {
     norm: Normalization,
     /// Source points (subsampled), unit frame.
     source: Vec<Point3<f64>>,
+    /// A scene's polish points ([`crate::PolishSettings::scene_points`]), unit frame; `None`
+    /// polishes [`Self::source`].
+    polished: Option<Vec<Point3<f64>>>,
+}
+
+/// Seed offset of the draw of a scene's polish points, apart from the registration's stream.
+const POLISH_DRAW: u64 = 0x5ce7_e9a1;
+
+/// A scene's polish points in the unit frame of `norm`: [`crate::PolishSettings::scene_points`]
+/// of `dense` (the usable source) drawn by their own stream; `None` for an object, when the
+/// setting is 0 or no more than the registration's own points `drawn`.
+fn polish_points(
+    norm: &Normalization,
+    local: bool,
+    dense: &[Point3<f64>],
+    drawn: &[Point3<f64>],
+    s: &RegisterSettings,
+) -> Option<Vec<Point3<f64>>> {
+    let n = s.polish.scene_points.min(dense.len());
+    if !local || n <= drawn.len() {
+        return None;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ POLISH_DRAW);
+    let points = subsample(dense, n, &mut rng);
+    Some(points.iter().map(|p| norm.to_unit_f64(p)).collect())
 }
 
 /// Stage 1 for the source: the (subsampled) source in the target's unit frame; a source with no
@@ -409,6 +444,7 @@ fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, E
     Ok(Unit {
         norm: *norm,
         source,
+        polished: None,
     })
 }
 

@@ -358,6 +358,7 @@ class PolishSettings:
         patience: int = 0,
         scene_tolerance_spacings: float = 0.1,
         scene_kernel_floor_spacings: float = 1.0,
+        scene_points: int = 0,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -387,6 +388,8 @@ class PolishSettings:
     def scene_tolerance_spacings(self) -> float: ...
     @property
     def scene_kernel_floor_spacings(self) -> float: ...
+    @property
+    def scene_points(self) -> int: ...
 
 @final
 class ShiftSearchSettings:
@@ -615,7 +618,7 @@ def register(
             refined.
         preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
             robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
-            object's polish pass ending when its steps stop shrinking, against planes at the target's points). The arguments below override it; None keeps the
+            object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points). The arguments below override it; None keeps the
             preset's value.
         robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
             ``"on"``, ``"off"``, or a :class:`RobustSettings`.
@@ -692,7 +695,7 @@ def align(
         seed: Seed of every random choice.
         threads: Worker threads; 0 = one per core.
         preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
-            the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points).
+            the start, with an object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points).
 
     The other keywords are :func:`register`'s (without ``scale``) and apply to every pair.
 
