@@ -152,7 +152,7 @@ impl RegisterSettings {
     /// point spacings ([`PolishSettings::scene_tolerance_spacings`]), so that the views' poses
     /// agree to a millimetre where the surfaces pin a direction with few points: on the
     /// procedural room's loop of 8 views (`cargo bench --bench views`, 1 cm range noise) every
-    /// pose within 0.029° / 1.0 mm of the truth instead of 0.037° / 2.3 mm, in 1.4 times the
+    /// pose within 0.029° / 1.0 mm of the truth instead of 0.037° / 2.3 mm, in 1.5 times the
     /// time; without noise within 0.0016° / 0.23 mm instead of 0.0038° / 0.60 mm. Either alone
     /// did less (16384 points: 0.043° / 1.6 mm; 0.01 spacings: 0.050° / 2.3 mm). Objects are
     /// polished as before.
