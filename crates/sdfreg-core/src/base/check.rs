@@ -31,6 +31,17 @@ pub fn at_least(name: &'static str, v: f64, min: f64) -> Result<(), Error> {
     bad(name, format!("must be a finite number ≥ {min}, got {v}"))
 }
 
+/// 0 (which means `off`) or a finite number ≥ `min`.
+pub fn off_or_at_least(name: &'static str, v: f64, min: f64, off: &str) -> Result<(), Error> {
+    if v == 0.0 || (v >= min && v.is_finite()) {
+        return Ok(());
+    }
+    bad(
+        name,
+        format!("must be 0 ({off}) or a finite number ≥ {min}, got {v}"),
+    )
+}
+
 /// A number in [0, 1].
 pub fn in_unit_interval(name: &'static str, v: f64) -> Result<(), Error> {
     if (0.0..=1.0).contains(&v) {

@@ -356,10 +356,8 @@ fn run<S: Surface>(
         )
     };
     let free_scale = lm.scale.map(|d| (d.s, (d.min, d.max)));
-    let polished = match (&unit.polished, free_scale) {
-        (Some(dense), None) => polish_with(dense, &lm.pose, None),
-        _ => polish_with(&unit.source, &lm.pose, free_scale),
-    };
+    let points = unit.polished.as_deref().unwrap_or(&unit.source);
+    let polished = polish_with(points, &lm.pose, free_scale);
     lap(&mut times.polish);
     // With a scale, the search moves the source at the polished scale.
     let source: Cow<'_, [Point3<f64>]> = match free_scale {
@@ -412,8 +410,9 @@ struct Unit {
 const POLISH_DRAW: u64 = 0x5ce7_e9a1;
 
 /// A scene's polish points in the unit frame of `norm`: [`crate::PolishSettings::scene_points`]
-/// of `dense` (the usable source) drawn by their own stream; `None` for an object, when the
-/// setting is 0 or no more than the registration's own points `drawn`.
+/// of `dense` (the usable source) drawn by their own stream; `None` for an object, with a scale
+/// (whose polish moves the registration's own points), when the setting is 0 or no more than
+/// the registration's own points `drawn`.
 fn polish_points(
     norm: &Normalization,
     local: bool,
@@ -422,7 +421,7 @@ fn polish_points(
     s: &RegisterSettings,
 ) -> Option<Vec<Point3<f64>>> {
     let n = s.polish.scene_points.min(dense.len());
-    if !local || n <= drawn.len() {
+    if !local || s.scale.enabled || n <= drawn.len() {
         return None;
     }
     let mut rng = ChaCha8Rng::seed_from_u64(s.seed ^ POLISH_DRAW);

@@ -280,13 +280,7 @@ impl RegisterSettings {
         check::count_at_least("max_target_points", self.max_target_points, MIN_POINTS)?;
         check::fraction_below_one("free_motion_ratio", self.free_motion_ratio)?;
         check::positive("inlier_distance", self.inlier_distance)?;
-        let r = self.swap_ratio;
-        if r != 0.0 && !(r >= 1.0 && r.is_finite()) {
-            return Err(Error::InvalidSetting {
-                name: "swap_ratio",
-                reason: format!("must be 0 (never swap) or a finite number ≥ 1, got {r}"),
-            });
-        }
+        check::off_or_at_least("swap_ratio", self.swap_ratio, 1.0, "never swap")?;
         Ok(())
     }
 }
