@@ -1,7 +1,8 @@
 //! Many views of the procedural room (`sdfreg_core::sim::lidar::room_loop`): N scans from
 //! sensor poses in a loop, aligned into the first scan's frame from no guesses; prints each
 //! pose's error against the simulator's truth, the loop's closure (the last pose's error
-//! against the first non-anchor's), the time per stage and the edges kept.
+//! against the first non-anchor's), the kept edges' mean rotation error in their targets'
+//! frames (a bias every pose inherits), the time per stage and the edges kept.
 //!
 //!     cargo bench --bench views                 # 8 views, 64 beams
 //!     cargo bench --bench views -- --views 100  # peak memory: run under /usr/bin/time -v
@@ -115,6 +116,7 @@ fn main() {
         errors.last().map_or(0.0, |e| e.0),
         errors.last().map_or(0.0, |e| e.1 * 1e3)
     );
+    edge_bias(&a, &truth);
     let t = a.times;
     println!(
         "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, unplaced {:.1} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",
@@ -127,6 +129,41 @@ fn main() {
         t.joint.as_secs_f64(),
         a.edges.iter().filter(|e| e.kept).count(),
         a.edges.len()
+    );
+}
+
+/// The kept edges' rotation errors, each in its target scan's frame (rotation vector of
+/// `measured · truth⁻¹`, degrees): their mean, and its standard error. Of two room scans with as
+/// many points the earlier is the target, so every edge with the anchor has the anchor as its
+/// target, and a mean well away from zero is a bias of registering onto a scan that every pose
+/// inherits (the loop's closure compares two poses that share it).
+fn edge_bias(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
+    let errors: Vec<nalgebra::Vector3<f64>> = a
+        .edges
+        .iter()
+        .filter(|e| e.kept)
+        .filter_map(|e| {
+            let r = e.registration.as_ref().ok()?;
+            let exact = truth[e.target].inverse() * truth[e.source];
+            let d = r.t_target_source * exact.inverse();
+            Some(d.rotation.scaled_axis().map(f64::to_degrees))
+        })
+        .collect();
+    if errors.len() < 2 {
+        return;
+    }
+    let n = errors.len() as f64;
+    let mean = errors.iter().sum::<nalgebra::Vector3<f64>>() / n;
+    let sd = (errors
+        .iter()
+        .map(|e| (e - mean).component_mul(&(e - mean)))
+        .sum::<nalgebra::Vector3<f64>>()
+        / (n - 1.0))
+        .map(f64::sqrt);
+    let se = sd / n.sqrt();
+    println!(
+        "kept edges' rotation error in the target's frame: mean ({:.4}, {:.4}, {:.4})° ± ({:.4}, {:.4}, {:.4})° (standard error, {} edges)",
+        mean.x, mean.y, mean.z, se.x, se.y, se.z, errors.len()
     );
 }
 
