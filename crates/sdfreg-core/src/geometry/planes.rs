@@ -239,8 +239,11 @@ impl TargetPlanes {
 
     /// Distance of `x` to the plane of its nearest target point, signed along that plane's
     /// normal, and the normal; `None` when that point is farther than `max_d2` (squared).
-    /// `cache` keeps the nearest point while it certainly stays the nearest (the gap between
-    /// the two nearest distances, as [`PlaneCache`] does for `k` points).
+    /// One nearest-point query each call; `cache` keeps the plane of the last nearest point.
+    /// (Skipping the query while the nearest certainly stays the same, by the gap between the
+    /// two nearest distances as [`PlaneCache`] does for `k` points, gave the same numbers but
+    /// cost more: the two-nearest query outweighed the queries saved — a bunny pair's polish
+    /// 374 → 494 ms, the outdoor LiDAR pair's through its model 86–109 → 101–124 ms.)
     pub(crate) fn residual(
         &self,
         target: &[[f32; 3]],
