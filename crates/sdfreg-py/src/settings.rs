@@ -340,6 +340,9 @@ settings_class! {
     ///         multi-start and return that when it leaves less outside.
     ///     grid_cells: While Φ is being fitted (a full call against an object), the starts'
     ///         first round reads Φ baked into a grid of this many cells a side; 0: Φ itself.
+    ///     scene_turn_deg: When Φ is local (a scene), the starts also turn the source about
+    ///         its axis of least spread (a scan's vertical) by each multiple of this angle that
+    ///         is not one of 90°, degrees; 0 none, else at least 5.
     PyMultistartSettings => MultistartSettings as "MultistartSettings", "multistart" {
         enabled: bool = true,
         offset: f64 = 0.1,
@@ -354,6 +357,7 @@ settings_class! {
         hypotheses: i64 = 3,
         rescue: bool = true,
         grid_cells: i64 = 32,
+        scene_turn_deg: f64 = 30.0,
     }
 }
 
@@ -424,6 +428,8 @@ settings_class! {
     ///     scene_points: When Φ is local (a scene), the polish moves this many of the source's
     ///         points, drawn apart from the registration's own; 0 (or no more than
     ///         ``max_source_points``) polishes those (the ``"views"`` preset: 16384).
+    ///     scene_iterations: ``iterations`` when Φ is local (a scene), unless that is 0 (the
+    ///         ``"views"`` preset: 100).
     PyPolishSettings => PolishSettings as "PolishSettings", "polish" {
         iterations: i64 = 50,
         neighbours: i64 = 5,
@@ -440,6 +446,7 @@ settings_class! {
         scene_tolerance_spacings: f64 = 0.1,
         scene_kernel_floor_spacings: f64 = 1.0,
         scene_points: i64 = 0,
+        scene_iterations: i64 = 50,
     }
 }
 

@@ -215,6 +215,7 @@ class MultistartSettings:
         hypotheses: int = 3,
         rescue: bool = True,
         grid_cells: int = 32,
+        scene_turn_deg: float = 30.0,
     ) -> MultistartSettings: ...
     @property
     def enabled(self) -> bool: ...
@@ -242,6 +243,8 @@ class MultistartSettings:
     def rescue(self) -> bool: ...
     @property
     def grid_cells(self) -> int: ...
+    @property
+    def scene_turn_deg(self) -> float: ...
 
 @final
 class CoarseToFineSettings:
@@ -359,6 +362,7 @@ class PolishSettings:
         scene_tolerance_spacings: float = 0.1,
         scene_kernel_floor_spacings: float = 1.0,
         scene_points: int = 0,
+        scene_iterations: int = 50,
     ) -> PolishSettings: ...
     @property
     def iterations(self) -> int: ...
@@ -390,6 +394,8 @@ class PolishSettings:
     def scene_kernel_floor_spacings(self) -> float: ...
     @property
     def scene_points(self) -> int: ...
+    @property
+    def scene_iterations(self) -> int: ...
 
 @final
 class ShiftSearchSettings:
