@@ -93,8 +93,8 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
 
 
 def reference_worth(match: Path, row: dict) -> None:
-    """Point-to-plane ICP and GICP (Open3D, normals from 30 neighbours within 0.1 m) started
-    at the published pose of the 3DMatch pair: how far each moves from it, and how far sdfreg's
+    """Point-to-plane ICP and GICP (Open3D, normals from 30 neighbours within 0.1 m) and
+    small_gicp's GICP (when installed) started at the published pose of the 3DMatch pair: how far each moves from it, and how far sdfreg's
     answer (`row`) is from where they stop. A reference the data's own best fit moves away
     from cannot score a method closer than that."""
     try:
@@ -117,6 +117,18 @@ def reference_worth(match: Path, row: dict) -> None:
             a, b = pose_errors(t, gt), pose_errors(t, ours)
             print(f"  Open3D {name} from gt.txt ({dist} m): {a[0]:.3f}° / {a[1]:.3f} m from it, "
                   f"{b[0]:.3f}° / {b[1]:.3f} m from sdfreg's answer")
+    try:
+        import small_gicp
+    except ImportError:
+        return
+    points = [np.asarray(pc.points) for pc in (src, tgt)]
+    for voxel in (0.01, 0.025, 0.05):
+        t = small_gicp.align(points[1], points[0], init_T_target_source=gt, registration_type="GICP",
+                             downsampling_resolution=voxel, num_threads=2,
+                             max_correspondence_distance=0.1).T_target_source
+        a, b = pose_errors(t, gt), pose_errors(t, ours)
+        print(f"  small_gicp GICP from gt.txt ({voxel} m voxels, 0.1 m): {a[0]:.3f}° / {a[1]:.3f} m "
+              f"from it, {b[0]:.3f}° / {b[1]:.3f} m from sdfreg's answer")
 
 
 def random_motion(rng: np.random.Generator, max_deg: float, max_t: float) -> np.ndarray:
