@@ -4,7 +4,9 @@
 //! real scans any rotation. Each start aligns the centroids with one of the 24 rotations of the
 //! cube group ([`cube_rotations`]), also with the translation shifted by
 //! ±[`MultistartSettings::offset`] along each axis (a partial source's centroid is biased):
-//! 168 starts by default. Each is refined by a few LM steps on the pre-fitted Φ and scored on the
+//! 168 starts by default. Against a scene (a local Φ) the rotations also include turns about
+//! the source's axis of least spread, its vertical ([`MultistartSettings::scene_turn_deg`]):
+//! 224 starts. Each is refined by a few LM steps on the pre-fitted Φ and scored on the
 //! target points themselves ([`nn_score`]: the pre-fitted Φ is too coarse to separate
 //! near-symmetric poses). The identity start and the best distinct starts are refined further;
 //! among near-ties the least rotation wins ([`least_motion`], a prior for symmetric shapes). The
