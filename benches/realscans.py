@@ -94,9 +94,9 @@ def run(name: str, src: np.ndarray, tgt: np.ndarray, truth: np.ndarray, unit: fl
 
 def reference_worth(match: Path, row: dict) -> None:
     """Point-to-plane ICP and GICP (Open3D, normals from 30 neighbours within 0.1 m) and
-    small_gicp's GICP (when installed) started at the published pose of the 3DMatch pair: how far each moves from it, and how far sdfreg's
-    answer (`row`) is from where they stop. A reference the data's own best fit moves away
-    from cannot score a method closer than that."""
+    small_gicp's GICP (when installed) started at the published pose of the 3DMatch pair: how
+    far each moves from it, and how far sdfreg's answer (`row`) is from where they stop. A
+    reference the data's own best fit moves away from cannot score a method closer than that."""
     try:
         import open3d as o3d
     except ImportError:

@@ -18,8 +18,7 @@
 
 use kiddo::SquaredEuclidean;
 use nalgebra::{
-    Isometry3, Matrix3, Point3, Rotation3, SymmetricEigen, Translation3, Unit, UnitQuaternion,
-    Vector3,
+    Isometry3, Matrix3, Point3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3,
 };
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -28,6 +27,7 @@ use crate::base::check;
 use crate::base::error::Error;
 use crate::field::Field;
 use crate::geometry::cloud::{subsample, transformed_f32};
+use crate::geometry::planes::pca_normal;
 use crate::geometry::tree::Tree;
 use crate::pipeline::surface::Surface;
 use crate::solve::kernel::Kernel;
@@ -184,21 +184,15 @@ pub fn cube_rotations() -> Vec<Rotation3<f64>> {
     out
 }
 
-/// The direction along which `points` spread least (the covariance's eigenvector of the
-/// smallest eigenvalue): the vertical of a room's or a street's scan. `None` for fewer than
-/// three points.
+/// The direction along which `points` spread least (their PCA normal, [`pca_normal`]): the
+/// vertical of a room's or a street's scan. `None` for fewer than three points.
 fn least_spread_axis(points: &[Point3<f64>]) -> Option<Unit<Vector3<f64>>> {
     if points.len() < 3 {
         return None;
     }
     let c = crate::geometry::cloud::centroid(points);
-    let cov = points.iter().fold(Matrix3::zeros(), |m, p| {
-        let d = p - c;
-        m + d * d.transpose()
-    });
-    let eig = SymmetricEigen::new(cov);
-    let k = eig.eigenvalues.imin();
-    Unit::try_new(eig.eigenvectors.column(k).into_owned(), 1e-12)
+    let cov: Matrix3<f64> = points.iter().map(|p| (p - c) * (p - c).transpose()).sum();
+    Unit::try_new(pca_normal(cov).0, 1e-12)
 }
 
 /// Mean squared distance from `points` moved by `pose` to their nearest target point, each
