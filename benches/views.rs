@@ -2,7 +2,8 @@
 //! sensor poses in a loop, aligned into the first scan's frame from no guesses; prints each
 //! pose's error against the simulator's truth, the loop's closure (the last pose's error
 //! against the first non-anchor's), the kept edges' mean rotation error in their targets'
-//! frames (a bias every pose inherits), the time per stage and the edges kept.
+//! frames, what chaining the consecutive pairs would give, the time per stage and the edges
+//! kept; with `--draws N`, each view's mean over N draws of the range noise.
 //!
 //!     cargo bench --bench views                 # 8 views, 64 beams
 //!     cargo bench --bench views -- --views 100  # peak memory: run under /usr/bin/time -v
@@ -12,6 +13,9 @@
 //!     cargo bench --bench views -- --consensus 30 --consensus-points 16384  # its sample per scan
 //!     cargo bench --bench views -- --reference-consensus ../shared/data
 //!     cargo bench --bench views -- --range-noise 0   # the sensor's range noise, metres
+//!     cargo bench --bench views -- --noise-draw 3    # another draw of that noise (0: the default)
+//!     cargo bench --bench views -- --reverse         # the loop the other way round (view 7 second)
+//!     cargo bench --bench views -- --draws 12        # draws 0..11 of the noise, and their means
 //!
 //! `--reference-consensus DATA` instead starts the multi-view refinement
 //! (`sdfreg_core::views::consensus`) from the Stanford bunny's reference poses
@@ -20,7 +24,7 @@
 
 use nalgebra::{Isometry3, Matrix4};
 use sdfreg_core::geometry::se3::{isometry_from_matrix, pose_errors};
-use sdfreg_core::sim::lidar::{room_loop, Sensor};
+use sdfreg_core::sim::lidar::{room_loop_seeded, Sensor};
 use sdfreg_core::views::consensus::consensus;
 use sdfreg_core::{align, AlignSettings, ConsensusSettings};
 
@@ -44,7 +48,50 @@ fn main() {
     if let Some(noise) = arg("--range-noise") {
         sensor.range_noise = noise.parse().expect("--range-noise METRES");
     }
-    let (scans, truth) = room_loop(views, &sensor);
+    let settings = AlignSettings {
+        joint_rounds: arg("--joint").map_or(AlignSettings::default().joint_rounds, |v| {
+            v.parse().expect("--joint N")
+        }),
+        consensus: ConsensusSettings {
+            iterations: arg("--consensus").map_or(0, |v| v.parse().expect("--consensus N")),
+            points: arg("--consensus-points").map_or(ConsensusSettings::default().points, |v| {
+                v.parse().expect("--consensus-points N")
+            }),
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let first: u64 = arg("--noise-draw").map_or(0, |v| v.parse().expect("--noise-draw N"));
+    let draws: u64 = arg("--draws").map_or(1, |v| v.parse().expect("--draws N"));
+    let runs: Vec<Run> = (first..first + draws.max(1))
+        .map(|draw| {
+            if draws > 1 {
+                println!("noise draw {draw}:");
+            }
+            one_draw(views, &sensor, draw, &settings)
+        })
+        .collect();
+    if runs.len() > 1 {
+        summary(&runs);
+    }
+}
+
+/// One alignment's figures against the truth, per view (the anchor's included): the aligned
+/// pose's error and the chained consecutive edges' (degrees, metres; `None` where unplaced or
+/// a link is missing), and the kept edges' mean rotation error in their targets' frames.
+struct Run {
+    aligned: Vec<Option<(f64, f64)>>,
+    chained: Vec<Option<(f64, f64)>>,
+    pitch: Option<nalgebra::Vector3<f64>>,
+}
+
+/// Scans the loop with noise draw `draw`, aligns it and prints the figures.
+fn one_draw(views: usize, sensor: &Sensor, draw: u64, settings: &AlignSettings) -> Run {
+    let (mut scans, mut truth) = room_loop_seeded(views, sensor, draw);
+    if std::env::args().any(|a| a == "--reverse") {
+        scans[1..].reverse();
+        truth[1..].reverse();
+    }
     if let Some(dir) = arg("--write") {
         std::fs::create_dir_all(&dir).expect("the folder");
         for (k, s) in scans.iter().enumerate() {
@@ -72,26 +119,13 @@ fn main() {
         points / views,
         sensor.rings
     );
-    let settings = AlignSettings {
-        joint_rounds: arg("--joint").map_or(AlignSettings::default().joint_rounds, |v| {
-            v.parse().expect("--joint N")
-        }),
-        consensus: ConsensusSettings {
-            iterations: arg("--consensus").map_or(0, |v| v.parse().expect("--consensus N")),
-            points: arg("--consensus-points").map_or(ConsensusSettings::default().points, |v| {
-                v.parse().expect("--consensus-points N")
-            }),
-            ..Default::default()
-        },
-        ..Default::default()
-    };
-    let a = align(&scans, None, &settings).expect("aligned");
-    let mut errors = Vec::new();
+    let a = align(&scans, None, settings).expect("aligned");
+    let mut aligned = Vec::new();
     for (k, (pose, t)) in a.poses.iter().zip(&truth).enumerate() {
         match pose {
             Some(p) => {
                 let (r, tr) = pose_errors(p, t);
-                errors.push((r, tr));
+                aligned.push(Some((r, tr)));
                 let d = (p.translation.vector - t.translation.vector) * 1e3;
                 println!(
                     "  view {k:3}: {r:.4}° / {:.2} mm ({:.1}, {:.1}, {:.1})",
@@ -101,9 +135,13 @@ fn main() {
                     d.z
                 );
             }
-            None => println!("  view {k:3}: left out"),
+            None => {
+                aligned.push(None);
+                println!("  view {k:3}: left out");
+            }
         }
     }
+    let errors: Vec<(f64, f64)> = aligned.iter().flatten().copied().collect();
     let worst = errors
         .iter()
         .fold((0.0f64, 0.0f64), |w, e| (w.0.max(e.0), w.1.max(e.1)));
@@ -116,7 +154,8 @@ fn main() {
         errors.last().map_or(0.0, |e| e.0),
         errors.last().map_or(0.0, |e| e.1 * 1e3)
     );
-    edge_bias(&a, &truth);
+    let pitch = edge_bias(&a, &truth);
+    let chained = chained(&a, &truth);
     let t = a.times;
     println!(
         "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, unplaced {:.1} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",
@@ -130,6 +169,63 @@ fn main() {
         a.edges.iter().filter(|e| e.kept).count(),
         a.edges.len()
     );
+    Run {
+        aligned,
+        chained,
+        pitch,
+    }
+}
+
+/// Over several noise draws: each view's mean error, aligned and chained; how often the loop's
+/// last view is no worse than its first; the spread of the edges' mean rotation error.
+fn summary(runs: &[Run]) {
+    let n = runs.len();
+    println!("over {n} noise draws, mean error per view (aligned | chained consecutive edges):");
+    let views = runs.iter().map(|r| r.aligned.len()).max().unwrap_or(0);
+    let mean = |values: Vec<(f64, f64)>| {
+        let k = values.len().max(1) as f64;
+        let s = values
+            .iter()
+            .fold((0.0, 0.0), |a, v| (a.0 + v.0, a.1 + v.1));
+        (s.0 / k, s.1 / k, values.len())
+    };
+    for k in 1..views {
+        let a = mean(runs.iter().filter_map(|r| *r.aligned.get(k)?).collect());
+        let c = mean(runs.iter().filter_map(|r| *r.chained.get(k)?).collect());
+        println!(
+            "  view {k:3}: {:.4}° / {:.2} mm ({} placed) | {:.4}° / {:.2} mm",
+            a.0,
+            a.1 * 1e3,
+            a.2,
+            c.0,
+            c.1 * 1e3
+        );
+    }
+    let ends: Vec<((f64, f64), (f64, f64))> = runs
+        .iter()
+        .filter_map(|r| Some(((*r.aligned.get(1)?)?, (*r.aligned.last()?)?)))
+        .collect();
+    let no_worse = |f: fn(&(f64, f64)) -> f64| ends.iter().filter(|(a, b)| f(b) <= f(a)).count();
+    println!(
+        "last view no worse than the first: rotation in {} of {}, translation in {} of {}",
+        no_worse(|e| e.0),
+        ends.len(),
+        no_worse(|e| e.1),
+        ends.len()
+    );
+    let pitches: Vec<f64> = runs.iter().filter_map(|r| Some(r.pitch?.y)).collect();
+    if pitches.len() > 1 {
+        let m = pitches.iter().sum::<f64>() / pitches.len() as f64;
+        let sd = (pitches.iter().map(|p| (p - m) * (p - m)).sum::<f64>()
+            / (pitches.len() - 1) as f64)
+            .sqrt();
+        println!(
+            "kept edges' mean rotation error about the target's y: {m:.4}° ± {:.4}° (standard error over the draws; per draw {:.4}° to {:.4}°)",
+            sd / (pitches.len() as f64).sqrt(),
+            pitches.iter().copied().fold(f64::INFINITY, f64::min),
+            pitches.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+        );
+    }
 }
 
 /// The kept edges' rotation errors, each in its target scan's frame (rotation vector of
@@ -137,7 +233,10 @@ fn main() {
 /// many points the earlier is the target, so every edge with the anchor has the anchor as its
 /// target, and a mean well away from zero is a bias of registering onto a scan that every pose
 /// inherits (the loop's closure compares two poses that share it).
-fn edge_bias(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
+fn edge_bias(
+    a: &sdfreg_core::Alignment,
+    truth: &[Isometry3<f64>],
+) -> Option<nalgebra::Vector3<f64>> {
     let errors: Vec<nalgebra::Vector3<f64>> = a
         .edges
         .iter()
@@ -150,7 +249,7 @@ fn edge_bias(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
         })
         .collect();
     if errors.len() < 2 {
-        return;
+        return None;
     }
     let n = errors.len() as f64;
     let mean = errors.iter().sum::<nalgebra::Vector3<f64>>() / n;
@@ -165,6 +264,37 @@ fn edge_bias(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
         "kept edges' rotation error in the target's frame: mean ({:.4}, {:.4}, {:.4})° ± ({:.4}, {:.4}, {:.4})° (standard error, {} edges)",
         mean.x, mean.y, mean.z, se.x, se.y, se.z, errors.len()
     );
+    Some(mean)
+}
+
+/// What chaining the pairs by hand would give: each view's pose composed from the consecutive
+/// edges `1 → 0`, `2 → 1`, …, `k → k−1` (whatever the graph made of them), beside the aligned
+/// poses. A chain's error grows along the loop; the graph's, which registers every pair, stays at
+/// the edges' own scatter, so its first and last views differ by that scatter alone.
+fn chained(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) -> Vec<Option<(f64, f64)>> {
+    let mut pose = Some(Isometry3::identity());
+    let mut errors = vec![Some((0.0, 0.0))];
+    for (k, exact) in truth.iter().enumerate().skip(1) {
+        let step = a.edges.iter().find_map(|e| {
+            let r = e.registration.as_ref().ok()?;
+            match (e.source, e.target) {
+                (s, t) if s == k && t == k - 1 => Some(r.t_target_source),
+                (s, t) if s == k - 1 && t == k => Some(r.t_target_source.inverse()),
+                _ => None,
+            }
+        });
+        pose = pose.zip(step).map(|(p, s)| p * s);
+        errors.push(pose.map(|p| pose_errors(&p, exact)));
+    }
+    let row: Vec<String> = errors[1..]
+        .iter()
+        .map(|e| e.map_or("-".into(), |(r, t)| format!("{r:.4}°/{:.2}", t * 1e3)))
+        .collect();
+    println!(
+        "chained consecutive edges, views 1..: {} (mm)",
+        row.join(" ")
+    );
+    errors
 }
 
 /// The bunny's 10 scans at their reference poses (relative to bun000), refined by the multi-view

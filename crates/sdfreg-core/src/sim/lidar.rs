@@ -402,6 +402,17 @@ pub fn room_pair_with(sensor: &Sensor) -> ScanPair {
 /// further: the scans (each in its sensor's frame, noise seed `k + 1`) and each scan's true pose
 /// in the first scan's frame.
 pub fn room_loop(views: usize, sensor: &Sensor) -> (Vec<Vec<Point3<f64>>>, Vec<Isometry3<f64>>) {
+    room_loop_seeded(views, sensor, 0)
+}
+
+/// [`room_loop`] with another draw of the range noise: scan `k`'s noise seed is
+/// `k + 1 + 1000 · noise_draw` (draw 0 is [`room_loop`]'s). The scene, poses and rays are the same
+/// for every draw.
+pub fn room_loop_seeded(
+    views: usize,
+    sensor: &Sensor,
+    noise_draw: u64,
+) -> (Vec<Vec<Point3<f64>>>, Vec<Isometry3<f64>>) {
     let scene = Scene::room(&mut ChaCha8Rng::seed_from_u64(2));
     let poses: Vec<Isometry3<f64>> = (0..views)
         .map(|k| {
@@ -417,7 +428,7 @@ pub fn room_loop(views: usize, sensor: &Sensor) -> (Vec<Vec<Point3<f64>>>, Vec<I
     let scans = poses
         .iter()
         .enumerate()
-        .map(|(k, p)| scan(&scene, sensor, p, k as u64 + 1))
+        .map(|(k, p)| scan(&scene, sensor, p, k as u64 + 1 + 1000 * noise_draw))
         .collect();
     let first = poses[0].inverse();
     (scans, poses.iter().map(|p| first * p).collect())
@@ -538,5 +549,39 @@ mod tests {
             mean.abs() < 1e-3 && (sd - 0.01).abs() < 1e-3,
             "mean {mean}, sd {sd}"
         );
+    }
+
+    #[test]
+    fn another_noise_draw_of_the_room_loop_moves_each_return_along_its_own_ray_only() {
+        let sensor = Sensor::spinning_32();
+        let (a, truth_a) = room_loop_seeded(2, &sensor, 0);
+        let (b, truth_b) = room_loop_seeded(2, &sensor, 3);
+        assert_eq!(
+            (a.clone(), truth_a.clone()),
+            room_loop(2, &sensor),
+            "draw 0 is room_loop's"
+        );
+        assert_eq!(truth_a, truth_b, "the same poses");
+        for (sa, sb) in a.iter().zip(&b) {
+            assert_eq!(sa.len(), sb.len(), "the same rays");
+            let mut worst_turn: f64 = 0.0;
+            let mut diffs = Vec::with_capacity(sa.len());
+            for (p, q) in sa.iter().zip(sb) {
+                worst_turn =
+                    worst_turn.max(p.coords.normalize().cross(&q.coords.normalize()).norm());
+                diffs.push(p.coords.norm() - q.coords.norm());
+            }
+            assert!(
+                worst_turn < 1e-9,
+                "a return left its ray by {worst_turn} rad"
+            );
+            // Two independent N(0, σ²) draws differ by N(0, 2σ²).
+            let sd = (diffs.iter().map(|d| d * d).sum::<f64>() / diffs.len() as f64).sqrt();
+            let expected = sensor.range_noise * 2f64.sqrt();
+            assert!(
+                (sd / expected - 1.0).abs() < 0.05,
+                "range differences {sd} m, expected {expected} m"
+            );
+        }
     }
 }
