@@ -12,7 +12,8 @@ fitness is at least 0.3; then `global_optimization` (Levenberg–Marquardt, line
 edge prune threshold 0.25, reference node 0). sdfreg: `sdfreg.align(scans)` with its defaults.
 Errors are each scan's pose against `gt_scan_to_world.txt`, relative to the first scan.
 `--shuffle` runs the scans in a seeded random order (the anchor stays bun000); `--foreign`
-replaces bun315 by a ModelNet chair scaled to the bunny's size (it must be left out).
+replaces bun315 (`--foreign SCAN`: that scan) by a ModelNet chair scaled to the bunny's size
+(it must be left out).
 Skips with a message when --data is missing.
 """
 
@@ -89,7 +90,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
     parser.add_argument("--shuffle", action="store_true")
-    parser.add_argument("--foreign", action="store_true")
+    parser.add_argument("--foreign", nargs="?", const="bun315", default=None, metavar="SCAN",
+                        help="replace SCAN (default bun315) by a ModelNet chair")
     parser.add_argument("--no-open3d", action="store_true", help="sdfreg.align alone")
     args = parser.parse_args()
     folder = args.data / "stanford" / "bunny" / "data"
@@ -105,7 +107,9 @@ def main() -> None:
     if args.foreign:
         chairs = sorted((args.data / "modelnet40-half1" / "chair").glob("*.ply"))
         chair = sdfreg.read_point_cloud(chairs[0])
-        k = names.index("bun315")
+        if args.foreign not in names:
+            sys.exit(f"multiway.py: --foreign {args.foreign}: not one of {', '.join(names)}")
+        k = names.index(args.foreign)
         names[k] = "chair (foreign)"
         scans[k] = (chair - chair.mean(0)) * 0.15
     truth = {n: np.linalg.inv(gt[names[0]]) @ gt[n] for n in names if n in gt}
