@@ -13,7 +13,8 @@ edge prune threshold 0.25, reference node 0). sdfreg: `sdfreg.align(scans)` with
 Errors are each scan's pose against `gt_scan_to_world.txt`, relative to the first scan.
 `--shuffle` runs the scans in a seeded random order (the anchor stays bun000); `--foreign`
 replaces bun315 (`--foreign SCAN`: that scan) by a ModelNet chair scaled to the bunny's size
-(it must be left out).
+(it must be left out). `--seen-from +z` gives `sdfreg.align` where the Stanford scanner stood in
+each scan's frame (far along +z), for its free-space check.
 Skips with a message when --data is missing.
 """
 
@@ -93,6 +94,9 @@ def main() -> None:
     parser.add_argument("--foreign", nargs="?", const="bun315", default=None, metavar="SCAN",
                         help="replace SCAN (default bun315) by a ModelNet chair")
     parser.add_argument("--no-open3d", action="store_true", help="sdfreg.align alone")
+    parser.add_argument("--seen-from", default=None, metavar="VIEW",
+                        help="sdfreg.align's free-space check: the scans were seen from VIEW "
+                        "(the Stanford scans: +z)")
     args = parser.parse_args()
     folder = args.data / "stanford" / "bunny" / "data"
     if not folder.is_dir():
@@ -115,7 +119,7 @@ def main() -> None:
     truth = {n: np.linalg.inv(gt[names[0]]) @ gt[n] for n in names if n in gt}
     runs = {}
     start = time.perf_counter()
-    a = sdfreg.align(scans)
+    a = sdfreg.align(scans, seen_from=args.seen_from)
     runs["sdfreg.align"] = (a.poses, time.perf_counter() - start)
     print(f"sdfreg.align: {a}, stages {a.stage_times_s}, left out {a.left_out}")
     try:

@@ -16,6 +16,7 @@
 //!     cargo bench --bench views -- --noise-draw 3    # another draw of that noise (0: the default)
 //!     cargo bench --bench views -- --reverse         # the loop the other way round (view 7 second)
 //!     cargo bench --bench views -- --draws 12        # draws 0..11 of the noise, and their means
+//!     cargo bench --bench views -- --seen-from origin   # with the free-space check
 //!
 //! `--reference-consensus DATA` instead starts the multi-view refinement
 //! (`sdfreg_core::views::consensus`) from the Stanford bunny's reference poses
@@ -59,6 +60,7 @@ fn main() {
             }),
             ..Default::default()
         },
+        seen_from: arg("--seen-from").map(|v| v.parse().expect("--seen-from origin|+z|x,y,z")),
         ..Default::default()
     };
     let first: u64 = arg("--noise-draw").map_or(0, |v| v.parse().expect("--noise-draw N"));
@@ -156,6 +158,14 @@ fn one_draw(views: usize, sensor: &Sensor, draw: u64, settings: &AlignSettings) 
     );
     let pitch = edge_bias(&a, &truth);
     let chained = chained(&a, &truth);
+    let checked: Vec<String> = a
+        .edges
+        .iter()
+        .filter_map(|e| Some(format!("{}→{} {:.3}", e.source, e.target, e.in_free_space?)))
+        .collect();
+    if !checked.is_empty() {
+        println!("in free space: {}", checked.join(", "));
+    }
     let t = a.times;
     println!(
         "time {:.1} s: models {:.1} s, pairs {:.1} s, graph {:.3} s, unplaced {:.1} s, consensus {:.1} s, joint {:.1} s; {} of {} pairs kept",

@@ -43,6 +43,8 @@ pub fn run(a: AlignArgs) -> Result<()> {
             ..Default::default()
         },
         threads: a.common.threads,
+        seen_from: a.seen_from,
+        max_in_free_space: a.max_in_free_space,
         ..Default::default()
     };
     settings.register.threads = a.common.threads;
@@ -166,6 +168,9 @@ fn poses_json(
             match &e.registration {
                 Ok(r) => v["transformation"] = matrix_rows(&r.matrix()).into(),
                 Err(why) => v["error"] = why.clone().into(),
+            }
+            if let Some(share) = e.in_free_space {
+                v["in_free_space"] = share.into();
             }
             v
         })

@@ -388,7 +388,7 @@ pub struct AlignArgs {
     /// Where to write the poses (JSON): per scan `file`, `transformation` (4×4, the scan's
     /// coordinates into the anchor's frame; null for a scan left out, with `left_out` saying
     /// why) and `fitness`; `edges` (each pair registered, its fitness, whether the pose graph
-    /// kept it); `time_ms` and `stage_ms`.
+    /// kept it, with --seen-from its `in_free_space` share); `time_ms` and `stage_ms`.
     #[arg(long, short)]
     pub output: PathBuf,
     /// Also write one model of all the aligned scans (.sdfm). (`--model` is the kind of Φ, as
@@ -418,6 +418,16 @@ pub struct AlignArgs {
     /// their references (see the guide's Many views page). 30 is plenty.
     #[arg(long, default_value_t = 0)]
     pub consensus_iterations: usize,
+    /// Where each scan was seen from, in its own frame: `origin` (a LiDAR or depth camera's
+    /// scan in its sensor's frame), an axis (`+z`: a scanner far along +z, as the Stanford
+    /// scans) or a direction `x,y,z`. A pair that puts more than --max-in-free-space of either
+    /// scan where the other's sensor saw empty space is then no edge (a look-alike part laid
+    /// onto another) [default: no such check].
+    #[arg(long, value_name = "VIEW")]
+    pub seen_from: Option<sdfreg_core::SeenFrom>,
+    /// See --seen-from: the share of a scan's points (of those facing a return of the other).
+    #[arg(long, default_value_t = 0.05)]
+    pub max_in_free_space: f64,
     /// Overwrite --output, --save-model and --mesh if they exist.
     #[arg(long)]
     pub force: bool,

@@ -1139,6 +1139,21 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--scale: align registers rigidly"));
+    // A view the free-space check cannot read is refused by the flag's name.
+    let out = sdfreg()
+        .arg("align")
+        .arg(dir.path().join("view_0.ply"))
+        .arg(dir.path().join("view_1.ply"))
+        .args(["--seen-from", "0,0,0", "-o"])
+        .arg(dir.path().join("other.json"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--seen-from") && err.contains("not zero"),
+        "{err}"
+    );
     let out = sdfreg()
         .arg("align")
         .arg(dir.path().join("view_0.ply"))

@@ -123,3 +123,4 @@ pub use solve::kernel::{Kernel, MAD_TO_SIGMA, SCALE_SIGMAS};
 pub use solve::lm::{LmSettings, StopReason};
 pub use views::align::{align, AlignSettings, AlignTimes, Alignment, Edge};
 pub use views::consensus::{ConsensusOutcome, ConsensusSettings};
+pub use views::free_space::SeenFrom;

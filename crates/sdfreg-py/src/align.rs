@@ -32,6 +32,12 @@ use crate::settings::{Caller, SettingsArgs};
 ///     consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
 ///         pose graph (every pose at once, against the other scans' points); 0 (the default)
 ///         skips it.
+///     seen_from: Where each scan was seen from, in its own frame: ``"origin"`` (a LiDAR or
+///         depth camera's scan in its sensor's frame), an axis such as ``"+z"`` (a scanner far
+///         along +z, as the Stanford scans) or a direction ``(x, y, z)``. A pair that puts more
+///         than ``max_in_free_space`` of either scan where the other's sensor saw empty space is
+///         then no edge. None (the default): no such check.
+///     max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.05.
 ///     seed: Seed of every random choice.
 ///     threads: Worker threads; 0 = one per core.
 ///     preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
@@ -47,7 +53,8 @@ use crate::settings::{Caller, SettingsArgs};
 ///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
 ///         of range.
 #[pyfunction]
-#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, **settings))]
+#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.05, **settings))]
+#[allow(clippy::too_many_arguments)]
 pub fn align<'py>(
     py: Python<'py>,
     scans: &Bound<'py, PyAny>,
@@ -55,8 +62,11 @@ pub fn align<'py>(
     anchor: i64,
     joint_rounds: i64,
     consensus_iterations: i64,
+    seen_from: Option<&Bound<'py, PyAny>>,
+    max_in_free_space: f64,
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<PyAlignment> {
+    let seen_from = seen_from.map(seen_from_arg).transpose()?;
     let scans: Vec<Vec<nalgebra::Point3<f64>>> = scans
         .try_iter()
         .map_err(|_| error::argument("scans", "expected a sequence of (N, 3) arrays"))?
@@ -91,6 +101,8 @@ pub fn align<'py>(
             })?,
             ..Default::default()
         },
+        seen_from,
+        max_in_free_space,
         ..Default::default()
     };
     let (alignment, model) = py
@@ -104,6 +116,22 @@ pub fn align<'py>(
         alignment,
         model: Arc::new(model),
     })
+}
+
+/// `seen_from=`: a string (`"origin"`, `"+z"`, `"1,0,0"`) or three numbers.
+fn seen_from_arg(v: &Bound<'_, PyAny>) -> PyResult<sdfreg_core::SeenFrom> {
+    let seen = match v.extract::<String>() {
+        Ok(text) => text.parse::<sdfreg_core::SeenFrom>(),
+        Err(_) => match v
+            .extract::<Vec<f64>>()
+            .ok()
+            .and_then(|d| <[f64; 3]>::try_from(d).ok())
+        {
+            Some(d) => sdfreg_core::SeenFrom::direction(d),
+            None => Err("expected \"origin\", an axis such as \"+z\" or three numbers".into()),
+        },
+    };
+    seen.map_err(|why| error::argument("seen_from", why))
 }
 
 /// The outcome of :func:`align`. Read-only.
@@ -145,8 +173,10 @@ impl PyAlignment {
     }
 
     /// Every pairwise registration, as dicts: ``target``, ``source`` (scan indices; the
-    /// source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph), and
-    /// ``registration`` (a :class:`Registration`) or ``error``.
+    /// source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph),
+    /// ``in_free_space`` (with ``seen_from``: the larger share of either scan that it puts in
+    /// the other's free space; else None), and ``registration`` (a :class:`Registration`) or
+    /// ``error``.
     #[getter]
     fn edges<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
         let list = PyList::empty(py);
@@ -156,6 +186,7 @@ impl PyAlignment {
             d.set_item("source", e.source)?;
             d.set_item("fitness", e.fitness())?;
             d.set_item("kept", e.kept)?;
+            d.set_item("in_free_space", e.in_free_space)?;
             match &e.registration {
                 Ok(r) => d.set_item("registration", PyRegistration(r.clone()))?,
                 Err(why) => d.set_item("error", why)?,

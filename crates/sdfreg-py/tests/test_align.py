@@ -83,3 +83,23 @@ def test_the_anchor_and_bad_input() -> None:
         sdfreg.align(scans, init=[np.eye(4)])
     with pytest.raises(TypeError, match="scale"):
         sdfreg.align(scans, scale=True)
+    for bad in ("up", "0,0,0", (1.0, 2.0), "nan,0,1", 3):
+        with pytest.raises(ValueError, match="seen_from"):
+            sdfreg.align(scans, seen_from=bad)
+    with pytest.raises(ValueError, match="align.max_in_free_space"):
+        sdfreg.align(scans, seen_from="origin", max_in_free_space=2.0)
+
+
+def test_the_free_space_check_measures_every_edge_and_drops_none_when_allowed_everything() -> None:
+    scans, _ = views(3, 2)
+    plain = sdfreg.align(scans, **QUICK)
+    assert all(e["in_free_space"] is None for e in plain.edges)
+    for seen in ("origin", (0.0, 0.0, 1.0)):
+        checked = sdfreg.align(scans, seen_from=seen, max_in_free_space=1.0, **QUICK)
+        shares = [e["in_free_space"] for e in checked.edges if "registration" in e]
+        assert shares and all(s is not None and 0.0 <= s <= 1.0 for s in shares), shares
+        # Measuring changes no registration and, allowing everything, no pose.
+        for a, b in zip(plain.poses, checked.poses):
+            assert (a is None) == (b is None)
+            if a is not None:
+                assert np.array_equal(a, b)

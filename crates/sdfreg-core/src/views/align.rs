@@ -32,6 +32,7 @@
 //! **Frames**: `poses[k]` maps scan `k`'s coordinates into the anchor scan's frame, user units.
 
 use std::borrow::Cow;
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Point3};
@@ -43,6 +44,7 @@ use crate::model::sdf_model::SdfModel;
 use crate::pipeline::registration::Registration;
 use crate::pipeline::settings::RegisterSettings;
 use crate::views::consensus::{consensus, ConsensusOutcome, ConsensusSettings};
+use crate::views::free_space::{edge_in_free_space, DepthMap, SeenFrom};
 use crate::views::graph::{optimise_robust, GraphEdge};
 
 /// Rounds of Cauchy weights on the pose graph's edges ([`optimise_robust`]). Measured on the
@@ -91,10 +93,25 @@ pub struct AlignSettings {
     pub models_at_once: usize,
     /// Worker threads for the pairs (one pair per worker) and the fits; 0 = one per core.
     pub threads: usize,
+    /// Where each scan was seen from, in its own frame, for the free-space check
+    /// ([`crate::views::free_space`]): a pair that puts more than
+    /// [`Self::max_in_free_space`] of either scan where the other's sensor saw empty space is
+    /// no edge. Default `None`: no check (sdfreg cannot tell a scan's sensor from its points).
+    #[serde(default)]
+    pub seen_from: Option<SeenFrom>,
+    /// See [`Self::seen_from`]: a share of the scan's points whose cells in the other's depth
+    /// map hold a return. Default 0.05 (right pairs of the Stanford bunny leave at most 1.8 %
+    /// there, of the procedural room 2.7 %; wrong ones 11.6–56 %).
+    #[serde(default = "default_max_in_free_space")]
+    pub max_in_free_space: f64,
 }
 
 fn default_models_at_once() -> usize {
     4
+}
+
+fn default_max_in_free_space() -> f64 {
+    0.05
 }
 
 impl Default for AlignSettings {
@@ -112,6 +129,8 @@ impl Default for AlignSettings {
             joint_rounds: 0,
             models_at_once: default_models_at_once(),
             threads: 0,
+            seen_from: None,
+            max_in_free_space: default_max_in_free_space(),
         }
     }
 }
@@ -137,6 +156,10 @@ impl AlignSettings {
             self.consistent_rotation_deg,
         )?;
         check::non_negative("align.consistent_translation", self.consistent_translation)?;
+        if let Some(seen) = &self.seen_from {
+            seen.validate("align.seen_from")?;
+        }
+        check::in_unit_interval("align.max_in_free_space", self.max_in_free_space)?;
         self.consensus.validate()
     }
 }
@@ -153,6 +176,10 @@ pub struct Edge {
     pub registration: Result<Registration, String>,
     /// Whether the pose graph used it.
     pub kept: bool,
+    /// With [`AlignSettings::seen_from`]: the larger of the two shares of a scan's points
+    /// that this registration puts in the other scan's free space (above
+    /// [`AlignSettings::max_in_free_space`] it is no edge); `None` unchecked.
+    pub in_free_space: Option<f64>,
 }
 
 impl Edge {
@@ -248,7 +275,21 @@ pub fn align(
     let mut times = AlignTimes::default();
     let pairs = pair_list(scans, s);
     let mut left_out = Vec::new();
-    let mut edges = models_and_pairs(scans, &pairs, &mut left_out, true, init, s, &mut times)?;
+    // Each scan's depth map for the free-space check, made when a pair first needs it.
+    let maps: Vec<OnceLock<Option<DepthMap>>> = match s.seen_from {
+        Some(_) => scans.iter().map(|_| OnceLock::new()).collect(),
+        None => Vec::new(),
+    };
+    let mut edges = models_and_pairs(
+        scans,
+        &pairs,
+        &mut left_out,
+        true,
+        init,
+        s,
+        &maps,
+        &mut times,
+    )?;
     let usable = scans.len() - left_out.len();
     if usable < 2 {
         return Err(Error::TooFewScans { found: usable });
@@ -272,6 +313,7 @@ pub fn align(
             false,
             init,
             s,
+            &maps,
             &mut times,
         )?);
         edges.iter_mut().for_each(|e| e.kept = false);
@@ -388,7 +430,9 @@ fn pair_list(scans: &[Vec<Point3<f64>>], s: &AlignSettings) -> Vec<(usize, usize
 /// once the pairs registered against it are done, so memory holds a few models, not one per
 /// scan. With `fit_all` the scans no pair registers against are fitted too (and dropped): one
 /// that cannot be fitted cannot be a source either, and is left out. A scan found unfittable is
-/// added to `left_out` and every pair with it dropped. Adds each stage's time to `times`.
+/// added to `left_out` and every pair with it dropped. With [`AlignSettings::seen_from`] each
+/// registration's free-space share is measured against the scans' depth `maps` (one slot a
+/// scan, filled when first needed). Adds each stage's time to `times`.
 #[allow(clippy::too_many_arguments)]
 fn models_and_pairs(
     scans: &[Vec<Point3<f64>>],
@@ -397,6 +441,7 @@ fn models_and_pairs(
     fit_all: bool,
     init: Option<&[Isometry3<f64>]>,
     s: &AlignSettings,
+    maps: &[OnceLock<Option<DepthMap>>],
     times: &mut AlignTimes,
 ) -> Result<Vec<Edge>, Error> {
     let settings = s.registration();
@@ -441,11 +486,31 @@ fn models_and_pairs(
             tried
                 .into_iter()
                 .zip(results)
-                .map(|((target, source, _), r)| Edge {
-                    target,
-                    source,
-                    registration: r.map_err(|e| e.to_string()),
-                    kept: false,
+                .map(|((target, source, _), r)| {
+                    let registration = r.map_err(|e| e.to_string());
+                    let in_free_space = registration.as_ref().ok().and_then(|r| {
+                        let map = |k: usize| {
+                            maps.get(k)?
+                                .get_or_init(|| {
+                                    s.seen_from
+                                        .as_ref()
+                                        .and_then(|v| DepthMap::new(&scans[k], v))
+                                })
+                                .as_ref()
+                        };
+                        edge_in_free_space(
+                            (&scans[target], map(target)?),
+                            (&scans[source], map(source)?),
+                            &r.t_target_source,
+                        )
+                    });
+                    Edge {
+                        target,
+                        source,
+                        registration,
+                        kept: false,
+                        in_free_space,
+                    }
                 }),
         );
         times.pairs += clock.elapsed();
@@ -558,6 +623,11 @@ fn pose_graph(
     };
     let candidates: Vec<usize> = (0..edges.len())
         .filter(|&e| edges[e].registration.is_ok() && edges[e].fitness() >= s.min_fitness)
+        .filter(|&e| {
+            edges[e]
+                .in_free_space
+                .is_none_or(|v| v <= s.max_in_free_space)
+        })
         .filter(|&e| !twin_wins(e))
         .collect();
     let extent = median_extent(scans);
@@ -894,6 +964,7 @@ mod tests {
                     ..self.base.clone()
                 }),
                 kept: false,
+                in_free_space: None,
             }
         }
     }
@@ -1013,6 +1084,7 @@ mod tests {
             source: j,
             registration: Err("wrong".into()),
             kept: false,
+            in_free_space: None,
         };
         let edges = vec![failed(0, 3), failed(1, 3), failed(3, 2)];
         let s = AlignSettings::default();

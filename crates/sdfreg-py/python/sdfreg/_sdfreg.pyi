@@ -10,6 +10,7 @@ from typing import (
     Optional,
     Protocol,
     Tuple,
+    Sequence,
     Union,
     final,
 )
@@ -677,6 +678,8 @@ def align(
     anchor: int = 0,
     joint_rounds: int = 0,
     consensus_iterations: int = 0,
+    seen_from: Union[str, Sequence[float], None] = None,
+    max_in_free_space: float = 0.05,
     **settings: Unpack[_AlignKeywords],
 ) -> Alignment:
     """Aligns many scans (views of one object or scene) into the frame of one of them.
@@ -698,6 +701,12 @@ def align(
         consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
             pose graph (every pose at once, against the other scans' points); 0 (the default)
             skips it.
+        seen_from: Where each scan was seen from, in its own frame: ``"origin"`` (a LiDAR or
+            depth camera's scan in its sensor's frame), an axis such as ``"+z"`` (a scanner far
+            along +z, as the Stanford scans) or a direction ``(x, y, z)``. A pair that puts more
+            than ``max_in_free_space`` of either scan where the other's sensor saw empty space is
+            then no edge. None (the default): no such check.
+        max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.05.
         seed: Seed of every random choice.
         threads: Worker threads; 0 = one per core.
         preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
@@ -734,8 +743,10 @@ class Alignment:
     @property
     def edges(self) -> List[Dict[str, Any]]:
         """Every pairwise registration, as dicts: ``target``, ``source`` (scan indices; the
-        source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph), and
-        ``registration`` (a :class:`Registration`) or ``error``."""
+        source was moved onto the target), ``fitness``, ``kept`` (used by the pose graph),
+        ``in_free_space`` (with ``seen_from``: the larger share of either scan that it puts in
+        the other's free space; else None), and ``registration`` (a :class:`Registration`) or
+        ``error``."""
     @property
     def model(self) -> SdfModel:
         """One model of all the placed scans in the anchor's frame (mesh it with
