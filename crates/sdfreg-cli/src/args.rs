@@ -426,7 +426,7 @@ pub struct AlignArgs {
     #[arg(long, value_name = "VIEW")]
     pub seen_from: Option<sdfreg_core::SeenFrom>,
     /// See --seen-from: the share of a scan's points (of those facing a return of the other).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.02)]
     pub max_in_free_space: f64,
     /// Overwrite --output, --save-model and --mesh if they exist.
     #[arg(long)]

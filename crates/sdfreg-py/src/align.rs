@@ -37,7 +37,7 @@ use crate::settings::{Caller, SettingsArgs};
 ///         along +z, as the Stanford scans) or a direction ``(x, y, z)``. A pair that puts more
 ///         than ``max_in_free_space`` of either scan where the other's sensor saw empty space is
 ///         then no edge. None (the default): no such check.
-///     max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.05.
+///     max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.02.
 ///     seed: Seed of every random choice.
 ///     threads: Worker threads; 0 = one per core.
 ///     preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
@@ -53,7 +53,7 @@ use crate::settings::{Caller, SettingsArgs};
 ///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
 ///         of range.
 #[pyfunction]
-#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.05, **settings))]
+#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.02, **settings))]
 #[allow(clippy::too_many_arguments)]
 pub fn align<'py>(
     py: Python<'py>,

@@ -679,7 +679,7 @@ def align(
     joint_rounds: int = 0,
     consensus_iterations: int = 0,
     seen_from: Union[str, Sequence[float], None] = None,
-    max_in_free_space: float = 0.05,
+    max_in_free_space: float = 0.02,
     **settings: Unpack[_AlignKeywords],
 ) -> Alignment:
     """Aligns many scans (views of one object or scene) into the frame of one of them.
@@ -706,7 +706,7 @@ def align(
             along +z, as the Stanford scans) or a direction ``(x, y, z)``. A pair that puts more
             than ``max_in_free_space`` of either scan where the other's sensor saw empty space is
             then no edge. None (the default): no such check.
-        max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.05.
+        max_in_free_space: See ``seen_from``; a share of the scan's points. Default 0.02.
         seed: Seed of every random choice.
         threads: Worker threads; 0 = one per core.
         preset: The pairs' preset, ``"views"`` by default (``"scans"``, the robust kernel from
