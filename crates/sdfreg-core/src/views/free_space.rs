@@ -18,9 +18,10 @@
 //! free space, wrong ones (47–180° off) 10.5–49 %; on the procedural room's loop seen from the
 //! scans' origins, right pairs at most 0.2 %, view 4 onto view 0 turned 8° 5.4 %; on six KITTI
 //! frames seen from their origins (real, moving cars), right pairs 0.14–0.32 %, pairs slid
-//! 0.6–1.4 m along the street 7.8–12.9 %. Comparing with
-//! one cell alone, KITTI's right pairs left 8–26 %: the road, seen at a grazing angle one ring
-//! a cell, lies much nearer at a cell's lower edge than where its ring crosses it.
+//! 0.6–1.4 m along the street 7.8–12.9 %. Compared with its own cell alone, KITTI's right pairs
+//! left 8–26 %: the road, seen at a grazing angle one ring a cell, lies much nearer at a cell's
+//! lower edge than where its ring crosses it. (Seen from the origin, cells do not wrap round at
+//! azimuth ±180°: a point there has fewer neighbours to be compared with.)
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
@@ -105,8 +106,8 @@ fn expected(text: &str) -> String {
 /// median spacing over its median range, an angle).
 const CELL_SPACINGS: f64 = 3.0;
 
-/// How much nearer the sensor than its cell's return a point must lie to be in free space, in
-/// point spacings.
+/// How much nearer the sensor than the nearest return of its cell and the 8 around it a point
+/// must lie to be in free space, in point spacings.
 const TOLERANCE_SPACINGS: f64 = 4.0;
 
 /// One scan's nearest returns by cell, as seen from [`SeenFrom`].
