@@ -25,6 +25,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector3};
 
+use crate::geometry::cloud::without_missing_returns;
 use crate::geometry::tree::{build_tree, target_spacing};
 
 /// Where a scan was seen from, in the scan's own frame.
@@ -180,28 +181,30 @@ fn key((i, j): (i64, i64)) -> i64 {
 
 impl DepthMap {
     /// The depth map of `points` (a scan in its own frame) seen from `seen`; `None` when the
-    /// scan has fewer than two points or no measurable spacing.
+    /// scan has fewer than two returns (finite points, its missing returns at the origin left
+    /// out) or no measurable spacing.
     pub(crate) fn new(points: &[Point3<f64>], seen: &SeenFrom) -> Option<Self> {
         let view = View::new(seen);
-        let finite: Vec<[f32; 3]> = points
+        // The returns: finite, and not the scanner's missing returns piled at the origin.
+        let points: Vec<Point3<f64>> = without_missing_returns(points)
             .iter()
-            .filter(|p| p.coords.iter().all(|x| x.is_finite()) && p.coords != Vector3::zeros())
-            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .filter(|p| p.coords.iter().all(|x| x.is_finite()))
+            .copied()
             .collect();
-        if finite.len() < 2 {
+        if points.len() < 2 {
             return None;
         }
-        let spacing = target_spacing(&finite, &build_tree(&finite));
+        let unit: Vec<[f32; 3]> = points
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let spacing = target_spacing(&unit, &build_tree(&unit));
         if !(spacing.is_finite() && spacing > 0.0) {
             return None;
         }
         let cell = match view {
             View::Origin => {
-                let mut r: Vec<f64> = points
-                    .iter()
-                    .map(|p| p.coords.norm())
-                    .filter(|r| *r > 0.0)
-                    .collect();
+                let mut r: Vec<f64> = points.iter().map(|p| p.coords.norm()).collect();
                 r.sort_by(f64::total_cmp);
                 CELL_SPACINGS * spacing / r[r.len() / 2]
             }
@@ -309,6 +312,21 @@ mod tests {
         let below = DepthMap::new(&floor(), &SeenFrom::Direction([0.0, 0.0, -1.0])).unwrap();
         assert_eq!(below.in_free_space(&floor(), &lift(-0.1)), Some(1.0));
         assert_eq!(below.in_free_space(&floor(), &lift(0.1)), Some(0.0));
+    }
+
+    #[test]
+    fn missing_returns_at_the_origin_hide_nothing() {
+        // The floor 1 m below the frame's origin, seen from +z, with a scanner's missing
+        // returns piled at (0, 0, 0): they are no surface, so the whole floor lifted 0.5 m is in
+        // free space, the part above the origin too.
+        let low: Vec<Point3<f64>> = floor().iter().map(|p| p - Vector3::z()).collect();
+        let mut scan = low.clone();
+        scan.extend(std::iter::repeat_n(Point3::origin(), 50));
+        let map = DepthMap::new(&scan, &SeenFrom::Direction([0.0, 0.0, 1.0])).unwrap();
+        assert_eq!(
+            map.in_free_space(&low, &Isometry3::translation(0.0, 0.0, 0.5)),
+            Some(1.0)
+        );
     }
 
     #[test]
