@@ -218,11 +218,15 @@ settings_class! {
     ///     beta: Softplus sharpness (1 / normalised length).
     ///     init_radius: Radius of the sphere the geometric initialisation starts from
     ///         (normalised: the target's largest bounding-box side is 1).
+    ///     learned_init: A full call's pre-fit of an object's Φ starts from the initialisation
+    ///         learned offline on procedural objects instead of the sphere (the ``"learned"``
+    ///         preset); only the default architecture (width 32, depth 3, beta 100) has one.
     PyMlpSettings => MlpSettings as "MlpSettings", "mlp" {
         width: i64 = 32,
         depth: i64 = 3,
         beta: f64 = 100.0,
         init_radius: f64 = 0.3,
+        learned_init: bool = false,
     }
 }
 

@@ -2,7 +2,7 @@
 //! target in its unit frame ([`Field`]).
 //!
 //! - [`mlp`]: the network with hand-written first and second derivatives
-//!   ([`mlp::Mlp`], its softplus kernels in `activation`);
+//!   ([`mlp::Mlp`], its softplus kernels in `activation`), started from [`learned_init`];
 //! - [`local_grid`]: a scene's sparse voxel grid of corrections; [`sdf`]: the fitted Φ, the
 //!   MLP plus, for a local model, that grid ([`sdf::SdfField`]);
 //! - [`baked`]: Φ sampled on a grid and read by trilinear interpolation;
@@ -13,6 +13,7 @@
 
 pub(crate) mod activation;
 pub mod baked;
+pub mod learned_init;
 pub mod local_grid;
 pub mod mesh;
 pub mod mlp;

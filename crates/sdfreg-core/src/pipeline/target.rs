@@ -5,6 +5,7 @@ use nalgebra::Point3;
 use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::Error;
+use crate::field::learned_init::shipped_for;
 use crate::fit::fitter::SdfFitter;
 use crate::geometry::cloud::{subsample, Normalization};
 use crate::pipeline::report::Stage;
@@ -14,7 +15,8 @@ use crate::pipeline::settings::RegisterSettings;
 pub(crate) const FIT_SEED_SALT: u64 = 0x5DF;
 
 /// Normalises `target` (user units and frame) into its unit frame, draws its subsample from
-/// `rng` (the registration's stream) and pre-fits Φ for `RegisterSettings::prefit_steps` Adam
+/// `rng` (the registration's stream) and pre-fits Φ, from the learned initialisation when
+/// `RegisterSettings::starts_learned`, for `RegisterSettings::prefit_steps` Adam
 /// steps (a local Φ's corrections are then set from planes), reporting [`Stage::Prefit`] to
 /// `progress`; `stored` for a stored model's fit.
 pub(crate) fn prefit(
@@ -32,7 +34,14 @@ pub(crate) fn prefit(
     let mut fit = s.fit.clone();
     fit.local = fit.local.for_extent(norm.scale);
     let mut fitter = SdfFitter::try_new(unit, &s.mlp, &fit, s.seed ^ FIT_SEED_SALT)?;
-    let total = s.prefit_steps(fitter.field().grid().is_some(), stored);
+    let local = fitter.field().grid().is_some();
+    if s.starts_learned(local, stored) {
+        let m = &s.mlp;
+        if let Some(init) = shipped_for(m.width, m.depth, m.beta) {
+            fitter.restart_from(init);
+        }
+    }
+    let total = s.prefit_steps(local, stored);
     let chunk = 50.max(total / 10);
     let mut done = 0;
     while done < total {

@@ -125,3 +125,150 @@ pub fn bracket<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
         })
         .collect()
 }
+
+/// One part of an [`assembly`], in its own frame (centred at the origin, axis z).
+#[derive(Clone, Copy, Debug)]
+enum Part {
+    /// A box of these half sides.
+    Cuboid(Vector3<f64>),
+    /// An ellipsoid of these radii.
+    Ellipsoid(Vector3<f64>),
+    /// A capped cylinder about z: radius, half height.
+    Cylinder(f64, f64),
+    /// An open tube about z (no caps, no inside): radius, half height.
+    Tube(f64, f64),
+}
+
+impl Part {
+    /// A part of random kind and size (each size in 0.03–0.5).
+    fn random<R: Rng>(rng: &mut R) -> Self {
+        let mut size = || rng.random_range(0.03..0.5);
+        let (a, b, c) = (size(), size(), size());
+        match rng.random_range(0..4) {
+            0 => Part::Cuboid(Vector3::new(a, b, c)),
+            1 => Part::Ellipsoid(Vector3::new(a, b, c)),
+            2 => Part::Cylinder(a.min(0.35), b),
+            _ => Part::Tube(a.min(0.35), b),
+        }
+    }
+
+    /// Its surface area, approximate for the ellipsoid (Knud Thomsen's formula).
+    fn area(&self) -> f64 {
+        use std::f64::consts::PI;
+        match *self {
+            Part::Cuboid(h) => 8.0 * (h.x * h.y + h.y * h.z + h.z * h.x),
+            Part::Ellipsoid(r) => {
+                let p = 1.6075;
+                let m = ((r.x * r.y).powf(p) + (r.y * r.z).powf(p) + (r.z * r.x).powf(p)) / 3.0;
+                4.0 * PI * m.powf(1.0 / p)
+            }
+            Part::Cylinder(r, h) => 2.0 * PI * r * 2.0 * h + 2.0 * PI * r * r,
+            Part::Tube(r, h) => 2.0 * PI * r * 2.0 * h,
+        }
+    }
+
+    /// A random point of its surface (uniform by area but on the ellipsoid, where it is
+    /// uniform by direction).
+    fn sample<R: Rng>(&self, rng: &mut R) -> Point3<f64> {
+        use std::f64::consts::PI;
+        match *self {
+            Part::Cuboid(h) => {
+                let areas = [h.y * h.z, h.z * h.x, h.x * h.y];
+                let mut a = rng.random::<f64>() * (areas[0] + areas[1] + areas[2]);
+                let mut axis = 2;
+                for (i, &w) in areas.iter().enumerate() {
+                    if a < w {
+                        axis = i;
+                        break;
+                    }
+                    a -= w;
+                }
+                let mut p = Vector3::from_fn(|i, _| rng.random_range(-h[i]..h[i]));
+                p[axis] = if rng.random::<bool>() {
+                    h[axis]
+                } else {
+                    -h[axis]
+                };
+                Point3::from(p)
+            }
+            Part::Ellipsoid(r) => {
+                let d = Vector3::<f64>::from_fn(|_, _| StandardNormal.sample(rng)).normalize();
+                Point3::from(d.component_mul(&r))
+            }
+            Part::Cylinder(r, h) | Part::Tube(r, h) => {
+                let side = 2.0 * PI * r * 2.0 * h;
+                let caps = if matches!(self, Part::Cylinder(..)) {
+                    2.0 * PI * r * r
+                } else {
+                    0.0
+                };
+                let phi = rng.random_range(0.0..2.0 * PI);
+                if rng.random::<f64>() * (side + caps) < side {
+                    Point3::new(r * phi.cos(), r * phi.sin(), rng.random_range(-h..h))
+                } else {
+                    let rho = r * rng.random::<f64>().sqrt();
+                    let z = if rng.random::<bool>() { h } else { -h };
+                    Point3::new(rho * phi.cos(), rho * phi.sin(), z)
+                }
+            }
+        }
+    }
+
+    /// Whether `p` (its frame) lies inside it by more than `margin`; a tube has no inside.
+    fn contains(&self, p: &Point3<f64>, margin: f64) -> bool {
+        match *self {
+            Part::Cuboid(h) => (0..3).all(|i| p[i].abs() < h[i] - margin),
+            Part::Ellipsoid(r) => {
+                let s = r.map(|v| (v - margin).max(1e-9));
+                (p.x / s.x).powi(2) + (p.y / s.y).powi(2) + (p.z / s.z).powi(2) < 1.0
+            }
+            Part::Cylinder(r, h) => p.x.hypot(p.y) < r - margin && p.z.abs() < h - margin,
+            Part::Tube(..) => false,
+        }
+    }
+}
+
+/// A random object: the outer surface of 1–5 parts (boxes, ellipsoids, capped cylinders and
+/// open tubes of random sizes, turned and placed at random, overlapping or not), `n` points
+/// spread by area; a point inside another part is left out. Training and test shapes for the
+/// fit (the learned initialisation, [`crate::field::mlp`]): their variety — thin plates, rods,
+/// surfaces of revolution, open shells, several pieces — stands in for real objects'.
+pub fn assembly<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
+    let count = rng.random_range(1..=5);
+    let parts: Vec<(Part, nalgebra::Isometry3<f64>)> = (0..count)
+        .map(|_| {
+            let part = Part::random(rng);
+            let axis = Vector3::<f64>::from_fn(|_, _| StandardNormal.sample(rng));
+            let angle = rng.random_range(0.0..std::f64::consts::PI);
+            let centre = Vector3::from_fn(|_, _| rng.random_range(-0.3..0.3));
+            let pose = nalgebra::Isometry3::new(centre, axis.normalize() * angle);
+            (part, pose)
+        })
+        .collect();
+    let total: f64 = parts.iter().map(|(p, _)| p.area()).sum();
+    let mut points = Vec::with_capacity(n);
+    // At most 50 draws a point, so parts hidden inside others cannot loop forever.
+    for _ in 0..50 * n {
+        if points.len() == n {
+            break;
+        }
+        let mut a = rng.random::<f64>() * total;
+        let mut k = parts.len() - 1;
+        for (i, (p, _)) in parts.iter().enumerate() {
+            if a < p.area() {
+                k = i;
+                break;
+            }
+            a -= p.area();
+        }
+        let x = parts[k].1 * parts[k].0.sample(rng);
+        let hidden = parts
+            .iter()
+            .enumerate()
+            .any(|(i, (p, pose))| i != k && p.contains(&pose.inverse_transform_point(&x), 1e-3));
+        if !hidden {
+            points.push(x);
+        }
+    }
+    points
+}

@@ -67,7 +67,13 @@ class MlpSettings:
     """The SDF network Φ: an MLP 3 → width × depth → 1 with softplus activations."""
 
     def __new__(
-        cls, *, width: int = 32, depth: int = 3, beta: float = 100.0, init_radius: float = 0.3
+        cls,
+        *,
+        width: int = 32,
+        depth: int = 3,
+        beta: float = 100.0,
+        init_radius: float = 0.3,
+        learned_init: bool = False,
     ) -> MlpSettings: ...
     @property
     def width(self) -> int: ...
@@ -77,6 +83,8 @@ class MlpSettings:
     def beta(self) -> float: ...
     @property
     def init_radius(self) -> float: ...
+    @property
+    def learned_init(self) -> bool: ...
 
 @final
 class FitSettings:
@@ -624,8 +632,8 @@ def register(
             numbers as the cloud). None: False for a model (Φ frozen); a cloud is always
             refined.
         preset: ``"default"``, ``"scans"`` for scans known to overlap only in part (the
-            robust kernel from the start, multi-start tie 0.05), or ``"views"`` (``"scans"`` with an
-            object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points). The arguments below override it; None keeps the
+            robust kernel from the start, multi-start tie 0.05), ``"views"`` (``"scans"`` with an
+            object's polish pass ending when its steps stop shrinking, against planes at the target's points; a scene's polish on 16384 source points), or ``"learned"`` (an object's pre-fit of 150 steps from an initialisation learned on procedural objects: about 0.7 of the time). The arguments below override it; None keeps the
             preset's value.
         robust: ``"auto"`` (least squares, redone with the robust kernel when it fits poorly),
             ``"on"``, ``"off"``, or a :class:`RobustSettings`.
