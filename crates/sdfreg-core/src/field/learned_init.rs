@@ -20,6 +20,8 @@ use std::sync::OnceLock;
 
 use safetensors::tensor::{Dtype, SafeTensors};
 
+use crate::field::mlp::Mlp;
+
 /// The shipped initialisation (see the module docs).
 const SHIPPED: &[u8] = include_bytes!("learned_init.safetensors");
 
@@ -54,11 +56,6 @@ struct Header {
     beta: f32,
 }
 
-/// Parameters of a network `3 → width × depth → 1`.
-pub fn param_count(width: usize, depth: usize) -> usize {
-    3 * width + width + (depth - 1) * (width * width + width) + width + 1
-}
-
 impl LearnedInit {
     /// Reads one from safetensors bytes; `None` unless it is one, whole and consistent
     /// (format, metadata, one F32 tensor of the architecture's parameter count, all finite).
@@ -71,7 +68,7 @@ impl LearnedInit {
         }
         let file = SafeTensors::deserialize(bytes).ok()?;
         let view = file.tensor(TENSOR).ok()?;
-        let n = param_count(header.width, header.depth);
+        let n = Mlp::param_count(header.width, header.depth);
         if view.dtype() != Dtype::F32 || view.shape() != [n] {
             return None;
         }

@@ -185,21 +185,7 @@ impl Mlp {
     /// [`MlpSettings::learned_init`] asks.)
     pub fn new<R: Rng>(settings: &MlpSettings, rng: &mut R) -> Self {
         let (w, d) = (settings.width.max(1), settings.depth.max(1));
-        let mut dims = vec![3];
-        dims.extend(std::iter::repeat_n(w, d));
-        dims.push(1);
-        let mut layers = Vec::new();
-        let mut n = 0;
-        for pair in dims.windows(2) {
-            let (n_in, n_out) = (pair[0], pair[1]);
-            layers.push(Layer {
-                n_in,
-                n_out,
-                w: n,
-                b: n + n_in * n_out,
-            });
-            n += n_in * n_out + n_out;
-        }
+        let (layers, n) = Self::layout(w, d);
         let mut params = vec![0.0f32; n];
         let last = layers.len() - 1;
         for (i, l) in layers.iter().enumerate() {
@@ -221,6 +207,32 @@ impl Mlp {
             beta: settings.beta,
             width: w,
         }
+    }
+
+    /// The layers of a network `3 → width × depth → 1` and its number of parameters.
+    fn layout(width: usize, depth: usize) -> (Vec<Layer>, usize) {
+        let mut dims = vec![3];
+        dims.extend(std::iter::repeat_n(width, depth));
+        dims.push(1);
+        let mut layers = Vec::new();
+        let mut n = 0;
+        for pair in dims.windows(2) {
+            let (n_in, n_out) = (pair[0], pair[1]);
+            layers.push(Layer {
+                n_in,
+                n_out,
+                w: n,
+                b: n + n_in * n_out,
+            });
+            n += n_in * n_out + n_out;
+        }
+        (layers, n)
+    }
+
+    /// Number of parameters of a network `3 → width × depth → 1` ([`Self::num_params`] of
+    /// one built with these sizes).
+    pub fn param_count(width: usize, depth: usize) -> usize {
+        Self::layout(width, depth).1
     }
 
     /// Number of parameters.
@@ -478,6 +490,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let net = Mlp::new(&MlpSettings::default(), &mut rng);
         assert_eq!(net.num_params(), 3 * 32 + 32 + 2 * (32 * 32 + 32) + 32 + 1);
+        assert_eq!(Mlp::param_count(32, 3), net.num_params());
         let pts: Vec<[f32; 3]> = points(200, 4)
             .into_iter()
             .filter(|p| p.iter().map(|v| v * v).sum::<f32>() > 0.05)

@@ -104,19 +104,10 @@ pub fn bracket<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
             }
         }
     }
-    let total: f64 = faces.iter().map(|f| f.6).sum();
+    let areas: Vec<f64> = faces.iter().map(|f| f.6).collect();
     (0..n)
         .map(|_| {
-            let mut a = rng.random::<f64>() * total;
-            let mut f = faces[faces.len() - 1];
-            for face in &faces {
-                if a < face.6 {
-                    f = *face;
-                    break;
-                }
-                a -= face.6;
-            }
-            let (lo, size, axis, u, v, side, _) = f;
+            let (lo, size, axis, u, v, side, _) = faces[pick_weighted(&areas, rng)];
             let mut p = lo;
             p[axis] += side * size[axis];
             p[u] += rng.random::<f64>() * size[u];
@@ -124,6 +115,23 @@ pub fn bracket<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
             Point3::from(p)
         })
         .collect()
+}
+
+/// The index of one of `weights` (positive) drawn with probability proportional to it: one
+/// `rng.random::<f64>()` scaled by their sum, walked down them in order (the last when
+/// rounding leaves it past them all). Not `rand`'s `WeightedIndex`, which draws differently:
+/// the shapes keep their random streams, and with them the learned initialisation trained on
+/// [`assembly`] (`examples/learn_init.rs`) stays reproducible.
+fn pick_weighted<R: Rng>(weights: &[f64], rng: &mut R) -> usize {
+    let total: f64 = weights.iter().sum();
+    let mut a = rng.random::<f64>() * total;
+    for (i, &w) in weights.iter().enumerate() {
+        if a < w {
+            return i;
+        }
+        a -= w;
+    }
+    weights.len() - 1
 }
 
 /// One part of an [`assembly`], in its own frame (centred at the origin, axis z).
@@ -173,16 +181,7 @@ impl Part {
         use std::f64::consts::PI;
         match *self {
             Part::Cuboid(h) => {
-                let areas = [h.y * h.z, h.z * h.x, h.x * h.y];
-                let mut a = rng.random::<f64>() * (areas[0] + areas[1] + areas[2]);
-                let mut axis = 2;
-                for (i, &w) in areas.iter().enumerate() {
-                    if a < w {
-                        axis = i;
-                        break;
-                    }
-                    a -= w;
-                }
+                let axis = pick_weighted(&[h.y * h.z, h.z * h.x, h.x * h.y], rng);
                 let mut p = Vector3::from_fn(|i, _| rng.random_range(-h[i]..h[i]));
                 p[axis] = if rng.random::<bool>() {
                     h[axis]
@@ -197,13 +196,9 @@ impl Part {
             }
             Part::Cylinder(r, h) | Part::Tube(r, h) => {
                 let side = 2.0 * PI * r * 2.0 * h;
-                let caps = if matches!(self, Part::Cylinder(..)) {
-                    2.0 * PI * r * r
-                } else {
-                    0.0
-                };
                 let phi = rng.random_range(0.0..2.0 * PI);
-                if rng.random::<f64>() * (side + caps) < side {
+                // The side's share of the area ([`Self::area`]: the tube's is the side alone).
+                if rng.random::<f64>() * self.area() < side {
                     Point3::new(r * phi.cos(), r * phi.sin(), rng.random_range(-h..h))
                 } else {
                     let rho = r * rng.random::<f64>().sqrt();
@@ -231,7 +226,7 @@ impl Part {
 /// A random object: the outer surface of 1–5 parts (boxes, ellipsoids, capped cylinders and
 /// open tubes of random sizes, turned and placed at random, overlapping or not), `n` points
 /// spread by area; a point inside another part is left out. Training and test shapes for the
-/// fit (the learned initialisation, [`crate::field::mlp`]): their variety — thin plates, rods,
+/// fit (the learned initialisation, [`crate::field::learned_init`]): their variety — thin plates, rods,
 /// surfaces of revolution, open shells, several pieces — stands in for real objects'.
 pub fn assembly<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
     let count = rng.random_range(1..=5);
@@ -245,22 +240,14 @@ pub fn assembly<R: Rng>(n: usize, rng: &mut R) -> Vec<Point3<f64>> {
             (part, pose)
         })
         .collect();
-    let total: f64 = parts.iter().map(|(p, _)| p.area()).sum();
+    let areas: Vec<f64> = parts.iter().map(|(p, _)| p.area()).collect();
     let mut points = Vec::with_capacity(n);
     // At most 50 draws a point, so parts hidden inside others cannot loop forever.
     for _ in 0..50 * n {
         if points.len() == n {
             break;
         }
-        let mut a = rng.random::<f64>() * total;
-        let mut k = parts.len() - 1;
-        for (i, (p, _)) in parts.iter().enumerate() {
-            if a < p.area() {
-                k = i;
-                break;
-            }
-            a -= p.area();
-        }
+        let k = pick_weighted(&areas, rng);
         let x = parts[k].1 * parts[k].0.sample(rng);
         let hidden = parts
             .iter()
