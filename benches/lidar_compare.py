@@ -20,7 +20,10 @@ does. Below each pair, the median of 7 registrations from the identity against t
 default 4096, and 2048 / 1024 as a user may set).
 
 With --real, each method runs from the identity and from one start 3 m / 20° off (times: the
-median of 5 runs, sdfreg's full call included); --far-starts adds, per pair and method, how many
+median of 5 runs, sdfreg's full call included); the outdoor pair, which has two published
+references and no ground truth, also gets what a reference is worth: small_gicp at three
+downsamplings against `gt.txt`, and the spread of Open3D's point-to-plane ICP over 12 settings
+against both references; --far-starts adds, per pair and method, how many
 of 8 such starts (the shift along 45°, 135°, 225°, 315°, the yaw either way) land within 0.1° /
 5 cm of the method's own answer from the identity: one start per pair says little, a basin's edge
 runs between neighbouring starts.
@@ -172,6 +175,45 @@ def gicp_worth(kind: str, src: np.ndarray, tgt: np.ndarray, reference: np.ndarra
     return rows
 
 
+PLANE_ICP_SETTINGS = [(voxel, radius, corr) for voxel in (0.0, 0.05, 0.1)
+                      for radius in (0.5, 1.0) for corr in (0.5, 1.0)]
+"""(downsampling m, 0 none; normals' radius m; correspondence distance m) at which
+`plane_icp_worth` runs Open3D's point-to-plane ICP."""
+
+
+def plane_icp_worth(kind: str, src: np.ndarray, tgt: np.ndarray, refs: List[np.ndarray]) -> List[dict]:
+    """How far a third method, point-to-plane ICP (Open3D, from the identity, 200 iterations,
+    normals from at most 30 neighbours) lands from each published reference over the
+    `PLANE_ICP_SETTINGS`: the spread among reasonable answers on a real pair without ground
+    truth. Nothing when Open3D is missing."""
+    try:
+        import open3d as o3d
+    except ImportError:
+        return []
+    reg = o3d.pipelines.registration
+    found = []
+    for voxel, radius, corr in PLANE_ICP_SETTINGS:
+        s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+        t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tgt))
+        if voxel:
+            s, t = s.voxel_down_sample(voxel), t.voxel_down_sample(voxel)
+        t.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
+        r = reg.registration_icp(s, t, corr, np.eye(4), reg.TransformationEstimationPointToPlane(),
+                                 reg.ICPConvergenceCriteria(max_iteration=200))
+        found.append(np.asarray(r.transformation))
+    rows = []
+    for ref, against in zip(refs, ("gt.txt", "gt_alt.txt")):
+        errs = [errors(t, ref) for t in found]
+        rot = [e[0] for e in errs]
+        trans = [e[1] for e in errs]
+        print(f"  as a reference: Open3D point-to-plane ICP over {len(found)} settings (downsampling 0/0.05/0.1 m, "
+              f"normals 0.5/1 m, correspondences 0.5/1 m): {min(rot):.3f}–{max(rot):.3f}° "
+              f"{min(trans):.4f}–{max(trans):.4f} m from {against}")
+        rows.append({"pair": kind, "method": "Open3D point-to-plane reference", "against": against,
+                     "rotation_error_deg": [min(rot), max(rot)], "translation_error_m": [min(trans), max(trans)]})
+    return rows
+
+
 def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
     """The real scans in ROOT (`../shared/data/lidar`): the outdoor pair against its two published
     references, and the KITTI frames (no poses) compared between methods and starts."""
@@ -207,6 +249,8 @@ def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
         gicp = peers.get("small_gicp GICP")
         if refs and gicp:
             rows.extend(gicp_worth(name, src, tgt, refs[0], "gt.txt"))
+        if refs:
+            rows.extend(plane_icp_worth(name, src, tgt, refs))
         ref = refs[0] if refs else (gicp(src, tgt, np.eye(4)) if gicp else np.eye(4))
         starts = {"identity": np.eye(4), "3 m, 20° off": yaw_shift(20.0, 3.0) @ ref}
         runs = {"sdfreg": lambda s_, t_, i: np.asarray(sdfreg.register(s_, t_, init=i).transformation),

@@ -36,9 +36,11 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Point3};
+use rayon::prelude::*;
 
 use crate::base::check;
 use crate::base::error::Error;
+use crate::base::pool::in_pool;
 use crate::batch::pairs::{register_many, Pair, PairTarget};
 use crate::model::sdf_model::SdfModel;
 use crate::pipeline::registration::Registration;
@@ -482,9 +484,10 @@ fn models_and_pairs(
             })
             .collect();
         let results = register_many(&batch, &s.register, s.threads)?;
-        edges.extend(
+        // Each edge's free-space check (and the depth maps it first needs) on the pairs' pool.
+        let checked: Vec<Edge> = in_pool(s.threads, || {
             tried
-                .into_iter()
+                .into_par_iter()
                 .zip(results)
                 .map(|((target, source, _), r)| {
                     let registration = r.map_err(|e| e.to_string());
@@ -511,8 +514,10 @@ fn models_and_pairs(
                         kept: false,
                         in_free_space,
                     }
-                }),
-        );
+                })
+                .collect()
+        })?;
+        edges.extend(checked);
         times.pairs += clock.elapsed();
     }
     edges.retain(|e| !is_left_out(left_out, e.source) && !is_left_out(left_out, e.target));
