@@ -429,6 +429,8 @@ settings_class! {
     ///         step is below this many target point spacings (the ``"views"`` preset: 0.01).
     ///     scene_kernel_floor_spacings: When Φ is local (a scene), the robust kernel's scale is
     ///         at least this many target point spacings (noise-free scans); 0 none.
+    ///     kernel_floor_spacings: The same against an object (a global Φ): independent samples
+    ///         of a clean surface would otherwise shrink the scale until the pass stalls.
     ///     scene_points: When Φ is local (a scene), the polish moves this many of the source's
     ///         points, drawn apart from the registration's own; 0 (or no more than
     ///         ``max_source_points``) polishes those (the ``"views"`` preset: 16384).
@@ -449,6 +451,7 @@ settings_class! {
         patience: i64 = 0,
         scene_tolerance_spacings: f64 = 0.1,
         scene_kernel_floor_spacings: f64 = 1.0,
+        kernel_floor_spacings: f64 = 0.25,
         scene_points: i64 = 0,
         scene_iterations: i64 = 50,
     }

@@ -84,6 +84,7 @@ def test_bad_initial_guess(cloud, init, message) -> None:
         (lambda: sdfreg.MultistartSettings(keep=0), "invalid setting `multistart.keep`"),
         (lambda: sdfreg.MultistartSettings(points=-3), "multistart.points: must be a count"),
         (lambda: sdfreg.PolishSettings(neighbours=2), "invalid setting `polish.neighbours`: must be ≥ 3"),
+        (lambda: sdfreg.PolishSettings(kernel_floor_spacings=-0.5), "invalid setting `polish.kernel_floor_spacings`: must be a finite number ≥ 0, got -0.5"),
         (lambda: sdfreg.ShiftSearchSettings(voxel=0.0), "invalid setting `shift_search.voxel`"),
         (lambda: sdfreg.RobustSettings(mode="fixed"), 'robust.scale: mode="fixed" needs a scale'),
         (lambda: sdfreg.RobustSettings(mode="fixed", scale=-0.1), "invalid setting `robust.mode.scale`"),

@@ -370,6 +370,7 @@ class PolishSettings:
         patience: int = 0,
         scene_tolerance_spacings: float = 0.1,
         scene_kernel_floor_spacings: float = 1.0,
+        kernel_floor_spacings: float = 0.25,
         scene_points: int = 0,
         scene_iterations: int = 50,
     ) -> PolishSettings: ...
@@ -401,6 +402,8 @@ class PolishSettings:
     def scene_tolerance_spacings(self) -> float: ...
     @property
     def scene_kernel_floor_spacings(self) -> float: ...
+    @property
+    def kernel_floor_spacings(self) -> float: ...
     @property
     def scene_points(self) -> int: ...
     @property
