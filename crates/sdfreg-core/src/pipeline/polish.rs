@@ -832,6 +832,7 @@ mod tests {
                 .collect();
             let source = crate::sim::shapes::bracket(2000, &mut rng);
             let tree = build_tree(&target);
+            let spacing = target_spacing(&target, &tree);
             let start = exp_se3(&Vector6::new(0.004, -0.01, 0.02, 0.003, -0.002, 0.001));
             let run = |floor: f64| {
                 let s = PolishSettings {
@@ -839,7 +840,6 @@ mod tests {
                     snap: false,
                     ..PolishSettings::default()
                 };
-                let spacing = target_spacing(&target, &tree);
                 let out = polish(
                     &source,
                     &target,
