@@ -37,6 +37,7 @@ from typing import Callable, Dict, List
 import numpy as np
 
 import sdfreg
+from common import rotation_error_deg
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -88,11 +89,6 @@ PAPER_ROWS: Dict[str, Dict[str, tuple]] = {
 
 
 # ---------------------------------------------------------------- error measures
-
-
-def rotation_error_deg(est: np.ndarray, gt: np.ndarray) -> float:
-    d = est[:3, :3].T @ gt[:3, :3]
-    return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(d) - 1) / 2))))
 
 
 def euler_xyz_deg(r: np.ndarray) -> np.ndarray:

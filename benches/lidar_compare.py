@@ -47,15 +47,16 @@ from typing import Callable, Dict, List, Optional
 import numpy as np
 
 import sdfreg
+from common import pose_errors
 
 # (downsampling voxel, max correspondence distance), metres.
 PARAMS = {"street": (0.25, 1.0), "room": (0.05, 0.25)}
 
 
 def errors(t: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
-    d = np.linalg.inv(gt) @ t
-    cos = (np.trace(d[:3, :3]) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, cos)))), float(np.linalg.norm(t[:3, 3] - gt[:3, 3]))
+    """(rotation error in degrees, translation error in metres) of `t` against `gt`
+    (`common.pose_errors`: the published references are not exact rotations)."""
+    return pose_errors(t, gt)
 
 
 def yaw_shift(yaw_deg: float, shift: float, direction_deg: float = 45.0) -> np.ndarray:

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
+from common import rotation_error_deg
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -77,14 +78,12 @@ def run_one(cli: Path, n: int, out: Path) -> dict:
     r = json.loads(result.read_text())
     est = np.array(r["transformation"])
     gt = np.linalg.inv(m)
-    rel = np.linalg.inv(gt) @ est
-    cos = np.clip((np.trace(rel[:3, :3]) - 1) / 2, -1, 1)
     return {
         "points": n,
         "register_s": r["time_ms"] / 1000,
         "process_s": wall,
         "peak_rss_mib": usage.ru_maxrss / 1024,  # Linux: kilobytes
-        "rotation_error_deg": math.degrees(math.acos(cos)),
+        "rotation_error_deg": rotation_error_deg(est, gt),
         "translation_error": float(np.linalg.norm(est[:3, 3] - gt[:3, 3])),
     }
 

@@ -365,7 +365,7 @@ mod tests {
             let r = Rotation3::from_axis_angle(&Vector3::x_axis(), a.to_radians())
                 * Rotation3::from_axis_angle(&Vector3::y_axis(), b.to_radians())
                 * Rotation3::from_axis_angle(&Vector3::z_axis(), c.to_radians());
-            assert!(rotation_angle(&r, &m.rotation.to_rotation_matrix()) < 1e-7); // acos near 0 resolves ~1e-8
+            assert!(rotation_angle(&r, &m.rotation.to_rotation_matrix()) < 1e-12);
             assert!([a, b, c].iter().all(|v| (0.0..=45.0 + 1e-9).contains(v)));
             let e = euler_errors(&m, &m);
             assert!(e.iter().all(|v| v.abs() < 1e-9));

@@ -204,10 +204,18 @@ pub fn pose_errors(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> (f64, f
     (r, t)
 }
 
-/// Geodesic angle (radians, in `[0, π]`) of the relative rotation `aᵀ b`.
+/// Geodesic angle (radians, in `[0, π]`) of the relative rotation `m = aᵀ b`:
+/// `atan2(‖vee(m − mᵀ)‖, tr m − 1)` (`= atan2(2 sin θ, 2 cos θ)`), exact to rounding at every
+/// angle, where `acos((tr m − 1) / 2)` resolves only ~1e-8 rad near 0.
 pub fn rotation_angle(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
     let m = a.matrix().transpose() * b.matrix();
-    ((m.trace() - 1.0) * 0.5).clamp(-1.0, 1.0).acos()
+    let twice_sin = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    )
+    .norm();
+    twice_sin.atan2(m.trace() - 1.0)
 }
 
 #[cfg(test)]
@@ -266,6 +274,23 @@ mod tests {
         axes.iter()
             .flat_map(|a| angles.iter().map(move |t| a * *t))
             .collect()
+    }
+
+    #[test]
+    fn the_rotation_angle_is_exact_from_0_to_pi() {
+        for theta in [1e-12, 1e-9, 1e-6, 0.3, 1.0, 2.0, PI - 1e-6, PI] {
+            let axis = Vector3::new(0.3, -0.5, 0.81).normalize();
+            let a = Rotation3::from_axis_angle(
+                &nalgebra::Unit::new_normalize(Vector3::new(1.0, 2.0, -0.5)),
+                0.7,
+            );
+            let b = a * Rotation3::from_axis_angle(&nalgebra::Unit::new_normalize(axis), theta);
+            let got = rotation_angle(&a, &b);
+            assert!(
+                (got - theta).abs() <= 1e-15 + 1e-9 * theta,
+                "θ = {theta}: read {got}"
+            );
+        }
     }
 
     #[test]
