@@ -47,9 +47,12 @@ def paper_pair(seed: int, n: int = 1024) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
-    """(geodesic rotation error in degrees, translation error) between two 4×4 transforms."""
+    """(geodesic rotation error in degrees, translation error) between two 4×4 transforms: the
+    angle of d = Rₑᵀ R as atan2(‖vee(d − dᵀ)‖, tr d − 1), exact at every angle (as
+    `benches/common.py` and the engine read it; the truths here are rotations)."""
     d = estimate[:3, :3].T @ truth[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(d) - 1) / 2, -1.0, 1.0)))
+    sin2 = np.linalg.norm([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]])
+    angle = np.degrees(np.arctan2(sin2, np.trace(d) - 1.0))
     return float(angle), float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
 
 
