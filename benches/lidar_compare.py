@@ -53,12 +53,6 @@ from common import pose_errors
 PARAMS = {"street": (0.25, 1.0), "room": (0.05, 0.25)}
 
 
-def errors(t: np.ndarray, gt: np.ndarray) -> tuple[float, float]:
-    """(rotation error in degrees, translation error in metres) of `t` against `gt`
-    (`common.pose_errors`: the published references are not exact rotations)."""
-    return pose_errors(t, gt)
-
-
 def yaw_shift(yaw_deg: float, shift: float, direction_deg: float = 45.0) -> np.ndarray:
     """A yaw of `yaw_deg` and a horizontal shift of `shift` along `direction_deg` from x."""
     a, d = math.radians(yaw_deg), math.radians(direction_deg)
@@ -121,12 +115,12 @@ def speed(kind: str, model: "sdfreg.SdfModel", src: np.ndarray, tgt: np.ndarray,
     rows = []
     model.register(src, init=np.eye(4))  # the model's first registration bakes its grid
     t_gicp, t = median_time(lambda: gicp(src, tgt, np.eye(4)))
-    rot, trans = errors(t, gt)
+    rot, trans = pose_errors(t, gt)
     print(f"  speed from the identity (median of 7): small_gicp {t_gicp:.3f} s ({rot:.3f}°, {trans:.4f} m)")
     for points in (4096, 2048, 1024):
         t_model, t = median_time(
             lambda: np.asarray(model.register(src, init=np.eye(4), max_source_points=points).transformation))
-        rot, trans = errors(t, gt)
+        rot, trans = pose_errors(t, gt)
         print(f"    against the model, {points} source points: {t_model:.3f} s = "
               f"{t_model / t_gicp:.2f}× small_gicp ({rot:.3f}°, {trans:.4f} m)")
         rows.append({"pair": kind, "method": "speed", "source_points": points, "model_s": t_model,
@@ -168,7 +162,7 @@ def gicp_worth(kind: str, src: np.ndarray, tgt: np.ndarray, reference: np.ndarra
     0.1 m, which this shows reproduced)."""
     rows = []
     for voxel in GICP_VOXELS:
-        rot, trans = errors(small_gicp_at(src, tgt, voxel), reference)
+        rot, trans = pose_errors(small_gicp_at(src, tgt, voxel), reference)
         print(f"  as a reference: small_gicp GICP at {voxel:.2f} m downsampling, 1 m correspondences: "
               f"{rot:.3f}° {trans:.4f} m from {against}")
         rows.append({"pair": kind, "method": "small_gicp reference", "voxel_m": voxel, "against": against,
@@ -204,7 +198,7 @@ def plane_icp_worth(kind: str, src: np.ndarray, tgt: np.ndarray, refs: List[np.n
         found.append(np.asarray(r.transformation))
     rows = []
     for ref, against in zip(refs, ("gt.txt", "gt_alt.txt")):
-        errs = [errors(t, ref) for t in found]
+        errs = [pose_errors(t, ref) for t in found]
         rot = [e[0] for e in errs]
         trans = [e[1] for e in errs]
         print(f"  as a reference: Open3D point-to-plane ICP over {len(found)} settings (downsampling 0/0.05/0.1 m, "
@@ -266,12 +260,12 @@ def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
                 row = {"pair": name, "method": method, "start": start, "time_s": seconds,
                        "transformation": t.tolist()}
                 if refs:
-                    errs = [errors(t, r) for r in refs]
+                    errs = [pose_errors(t, r) for r in refs]
                     row["error_gt"], row["error_gt_alt"] = errs
                     text = "  ".join(f"{r:.3f}° {m:.4f} m" for r, m in errs)
                     print(f"  {method:<16} {start:<14} against gt.txt / gt_alt.txt: {text}   {seconds:.3f} s", flush=True)
                 else:
-                    rot, tr = errors(t, ref)
+                    rot, tr = pose_errors(t, ref)
                     row["against_small_gicp"] = [rot, tr]
                     print(f"  {method:<16} {start:<14} step {np.linalg.norm(t[:3, 3]):.3f} m, against small_gicp "
                           f"(identity) {rot:.3f}° {tr:.4f} m   {seconds:.3f} s", flush=True)
@@ -279,7 +273,7 @@ def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
         for method in runs:
             a, b = answers.get(f"{method} / identity"), answers.get(f"{method} / 3 m, 20° off")
             if a is not None and b is not None:
-                rot, tr = errors(a, b)
+                rot, tr = pose_errors(a, b)
                 print(f"  {method:<16} identity against far start: {rot:.3f}° {tr:.4f} m")
         if far_starts:
             far(name, src, tgt, ref, runs, answers, rows)
@@ -296,7 +290,7 @@ def far(name: str, src: np.ndarray, tgt: np.ndarray, ref: np.ndarray, runs: Dict
         for direction in (45.0, 135.0, 225.0, 315.0):
             for yaw in (20.0, -20.0):
                 t = run(src, tgt, yaw_shift(yaw, 3.0, direction) @ ref)
-                rot, tr = errors(t, own)
+                rot, tr = pose_errors(t, own)
                 if rot < 0.1 and tr < 0.05:
                     landed += 1
                 else:
@@ -357,7 +351,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 t = run(src, tgt, init)
                 seconds = time.perf_counter() - t0
-                rot, trans = errors(t, gt)
+                rot, trans = pose_errors(t, gt)
                 rows.append({"pair": kind, "method": name, "start": start, "rotation_error_deg": rot,
                              "translation_error_m": trans, "time_s": seconds})
                 print(f"  {name:<16} {start:<16} {rot:8.3f}° {trans:8.3f} m {seconds:7.3f} s", flush=True)

@@ -3,22 +3,11 @@ are read with it, so it is checked like the engine's own `geometry::se3::rotatio
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
-import pytest
 
-ROOT = Path(__file__).resolve().parents[3]
-
-
-@pytest.fixture(scope="module")
-def common():
-    spec = importlib.util.spec_from_file_location("bench_common", ROOT / "benches" / "common.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from conftest import bench_common as common
 
 
 def axis_angle(axis, theta: float) -> np.ndarray:
@@ -27,7 +16,7 @@ def axis_angle(axis, theta: float) -> np.ndarray:
     return np.eye(3) + math.sin(theta) * kx + (1 - math.cos(theta)) * kx @ kx
 
 
-def test_the_rotation_error_is_exact_from_0_to_180_degrees(common):
+def test_the_rotation_error_is_exact_from_0_to_180_degrees():
     base = axis_angle([1.0, 2.0, -0.5], 0.7)
     for theta in [1e-12, 1e-9, 1e-6, 0.3, 2.0, math.pi - 1e-6, math.pi]:
         other = base @ axis_angle([0.3, -0.5, 0.81], theta)
@@ -35,7 +24,7 @@ def test_the_rotation_error_is_exact_from_0_to_180_degrees(common):
         assert abs(got - theta) <= 1e-15 + 1e-9 * theta, (theta, got)
 
 
-def test_a_published_pose_that_is_not_quite_a_rotation_reads_no_rotation_against_itself(common):
+def test_a_published_pose_that_is_not_quite_a_rotation_reads_no_rotation_against_itself():
     # 3DMatch redkitchen 06->00's gt.txt as published: |RᵀR − I| up to 7e-5. acos on the raw
     # block read 0.82° against itself.
     gt = np.array([[0.95587096, -0.15354693, 0.25032179, 0.4314653],
