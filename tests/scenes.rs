@@ -514,11 +514,15 @@ fn a_start_that_leaves_the_street_outside_is_rescued_by_the_multi_start() {
     let sdfreg_core::RescueReport::Kept {
         given_outside,
         rescue_outside,
+        given_fitness,
+        rescue_fitness,
     } = r.stages.rescue
     else {
         panic!("{:?}", r.stages.rescue);
     };
     assert!(given_outside > 0.2 && rescue_outside < given_outside);
+    assert!(rescue_fitness - rescue_outside > given_fitness - given_outside);
+    assert_eq!(rescue_fitness, r.fitness);
     assert!(r.stage_times.other_run > std::time::Duration::ZERO);
     // From the truth nothing is tried.
     let r = register(&pair.source, &pair.target, Some(&pair.t_target_source), &s).unwrap();

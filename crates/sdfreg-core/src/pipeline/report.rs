@@ -193,20 +193,36 @@ pub enum RescueReport {
     /// Not tried: no guess given, or its result within the coverage.
     #[default]
     NotTried,
-    /// The run from the multi-start left less of the source outside and was returned.
+    /// The run from the multi-start left less of the source outside, without fitting
+    /// correspondingly less of it (its fitness minus its outside share larger), and was
+    /// returned.
     Kept {
         /// The share of the source the guess's result left outside the target's coverage.
         given_outside: f64,
         /// The share the multi-start's result left outside.
         rescue_outside: f64,
+        /// The guess's result's fitness ([`crate::Registration::fitness`]; 0 in reports
+        /// written before it was recorded).
+        #[serde(default)]
+        given_fitness: f64,
+        /// The multi-start's result's fitness.
+        #[serde(default)]
+        rescue_fitness: f64,
     },
-    /// The run from the multi-start did not leave less outside; the guess's result was
-    /// returned.
+    /// The run from the multi-start did not leave less outside, or its fitness fell by more
+    /// than its outside share; the guess's result was returned.
     Rejected {
         /// The share of the source the guess's result left outside the target's coverage.
         given_outside: f64,
         /// The share the multi-start's result left outside.
         rescue_outside: f64,
+        /// The guess's result's fitness ([`crate::Registration::fitness`]; 0 in reports
+        /// written before it was recorded).
+        #[serde(default)]
+        given_fitness: f64,
+        /// The multi-start's result's fitness.
+        #[serde(default)]
+        rescue_fitness: f64,
     },
 }
 

@@ -529,7 +529,8 @@ class Registration:
         ``"rerun_kept"`` or ``"rerun_rejected"``, with the fitnesses), ``polish`` (``result``:
         ``"off"``, ``"applied"``, ``"snapped"`` or ``"undone"``; ``iterations``,
         ``stop_reason``), ``shift_search`` (``peaks``, ``taken``, ``fitness_gain``) and
-        ``rescue`` (``kind``: ``"not_tried"``, ``"kept"`` or ``"rejected"``). Each stage that
+        ``rescue`` (``kind``: ``"not_tried"``, ``"kept"`` or ``"rejected"``, with both results'
+        outside shares and fitnesses). Each stage that
         can move the pose has a ``change``: ``rotation_deg`` and ``translation`` (RMS
         displacement of the source points, the clouds' units). ``swapped``: True when the
         target was registered onto the source and the result inverted (``swap_ratio``); the
