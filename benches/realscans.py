@@ -3,6 +3,7 @@
     scripts/python-env                      # once: the venv with the sdfreg wheel
     .venv/bin/python benches/realscans.py --data ../shared/data [--json out.json] [key=value ...]
     .venv-compare/bin/python benches/realscans.py --only 3dmatch --reference   # what gt.txt is worth
+    .venv-compare/bin/python benches/realscans.py --only 3dmatch --densify 16  # at a scan's own density
 
 Pairs (metres, every registration from the clouds as they are — no initial guess):
 - bunny: bun045→bun000, bun090→bun045, bun180→bun090, bun270→bun180, bun315→bun270,
@@ -11,6 +12,8 @@ Pairs (metres, every registration from the clouds as they are — no initial gue
 - 3dmatch: redkitchen fragment 6 → 0 (gt.txt), and the paper's 3DMatch protocol: fragment 0
   against its own copy moved by a random rotation of up to 60° (uniform axis, angle U[0, 60°])
   and a translation of up to 1 m (uniform direction, length U[0, 1]), --paper-pairs pairs.
+  With --densify K (Open3D: benches/compare-env), also the 3DMatch pair made K times denser
+  along its surfaces, as a fragment at its own density is (the files are 2.5 cm voxels).
 
 Prints per pair the rotation error (geodesic, °), translation error (mm for the bunny, m for
 3DMatch), fitness, whether the robust kernel produced the result, flagged free motions and time.
@@ -155,6 +158,25 @@ def random_motion(rng: np.random.Generator, max_deg: float, max_t: float) -> np.
     return t
 
 
+def densify(points: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """`points` made `k` times denser along their surfaces: each point replaced by `k` drawn
+    uniformly over the 2.5 cm square about it in its tangent plane (normals from the 15 nearest
+    points, Open3D), so that the cloud's spacing is about 2.5 cm / √k, as a 3DMatch fragment's
+    own (before the 2.5 cm voxels of the data folder) is."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(15))
+    n = np.asarray(pc.normals)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(n, u)
+    off = np.random.default_rng(seed).uniform(-0.0125, 0.0125, (len(points), k, 2))
+    dense = points[:, None, :] + off[..., :1] * u[:, None, :] + off[..., 1:] * v[:, None, :]
+    return dense.reshape(-1, 3)
+
+
 def parse_value(v: str):
     for cast in (int, float):
         try:
@@ -173,6 +195,9 @@ def main() -> None:
     parser.add_argument("--reference", action="store_true",
                         help="with Open3D installed (benches/compare-env): how far ICP and GICP "
                         "move from 3DMatch's published pose, what that reference is worth")
+    parser.add_argument("--densify", type=int, default=0, metavar="K",
+                        help="also the 3DMatch pair made K times denser along its surfaces "
+                        "(Open3D: benches/compare-env)")
     parser.add_argument("--json", type=Path)
     parser.add_argument("settings", nargs="*", help="key=value passed to sdfreg.register")
     args = parser.parse_args()
@@ -209,6 +234,13 @@ def main() -> None:
                             1.0, settings))
             if args.reference:
                 reference_worth(match, rows[-1])
+            if args.densify > 1:
+                k = args.densify
+                rows.append(run(f"3dmatch redkitchen 06→00 ×{k}", densify(src, k, 0),
+                                densify(tgt, k, 1), np.loadtxt(match / "gt.txt"), 1.0, settings))
+                kind = rows[-1]["stages"]["global_rerun"]
+                print(f"  {len(src) * k} / {len(tgt) * k} points; the local Φ's re-run with a "
+                      f"global one: {kind}")
         if not only or "paper3dmatch" in only:
             rng = np.random.default_rng(0)
             paper = []

@@ -528,3 +528,43 @@ fn a_start_that_leaves_the_street_outside_is_rescued_by_the_multi_start() {
     let r = register(&pair.source, &pair.target, Some(&pair.t_target_source), &s).unwrap();
     assert_eq!(r.stages.rescue, sdfreg_core::RescueReport::NotTried);
 }
+
+#[test]
+fn a_scene_call_that_fits_poorly_with_the_local_model_runs_again_with_the_global_one() {
+    use sdfreg_core::GlobalRerunReport;
+    let pair = room_pair();
+    let s = RegisterSettings::default();
+    // The room fits well: no second run.
+    let r = register(&pair.source, &pair.target, None, &s).unwrap();
+    assert_eq!(r.stages.global_rerun, GlobalRerunReport::NotTried);
+    // Asked to at any fitness: both run, the one fitting more is returned, the other's time
+    // is in `other_run`.
+    let mut always = s.clone();
+    always.fit.local.global_rerun_below_fitness = 1.0;
+    let again = register(&pair.source, &pair.target, None, &always).unwrap();
+    let (local_fitness, global_fitness, kept_global) = match again.stages.global_rerun {
+        GlobalRerunReport::Kept {
+            local_fitness,
+            global_fitness,
+        } => (local_fitness, global_fitness, true),
+        GlobalRerunReport::Rejected {
+            local_fitness,
+            global_fitness,
+        } => (local_fitness, global_fitness, false),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(local_fitness, r.fitness);
+    assert_eq!(again.fitness, local_fitness.max(global_fitness));
+    assert_eq!(kept_global, global_fitness > local_fitness);
+    if !kept_global {
+        assert_eq!(again.t_target_source, r.t_target_source);
+    }
+    assert!(again.stage_times.other_run > r.stage_times.other_run);
+    let (rot, trans) = pose_errors(&again.t_target_source, &pair.t_target_source);
+    assert!(rot <= 0.1 && trans <= 0.01, "{rot}° {trans} m");
+    // A local model the caller asked for is kept whatever it fits.
+    let mut local = always.clone();
+    local.fit.local.kind = ModelKind::Local;
+    let r = register(&pair.source, &pair.target, None, &local).unwrap();
+    assert_eq!(r.stages.global_rerun, GlobalRerunReport::NotTried);
+}

@@ -111,8 +111,9 @@ pub use pipeline::polish::{PolishSettings, SNAP_RATIO};
 pub use pipeline::register::{register, register_with_progress};
 pub use pipeline::registration::Registration;
 pub use pipeline::report::{
-    CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RescueReport, RobustReport, ShiftSearchReport, Stage, StageTimes, Stages,
+    CoarseToFineReport, FinalLmReport, GlobalRerunReport, InitialReport, PolishReport,
+    PolishResult, PoseChange, RescueReport, RobustReport, ShiftSearchReport, Stage, StageTimes,
+    Stages,
 };
 pub use pipeline::robust::{RobustMode, RobustSettings, OUTSIDE_SPACINGS};
 pub use pipeline::scale::{ScaleSettings, DEFAULT_RANGE, UNIT_FACTORS};

@@ -124,7 +124,7 @@ impl PyRegistration {
     }
 
     /// What each stage did, as a dict: ``initial``, ``coarse_to_fine``, ``final_lm``,
-    /// ``robust``, ``polish``, ``shift_search``, ``rescue`` (each stage's ``change``:
+    /// ``robust``, ``polish``, ``shift_search``, ``rescue``, ``global_rerun`` (each stage's ``change``:
     /// ``rotation_deg`` and ``translation``, how far it moved the source), and ``swapped``
     /// (True when the target was registered onto the source and the result inverted:
     /// ``swap_ratio``).

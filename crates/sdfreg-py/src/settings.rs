@@ -303,6 +303,10 @@ settings_class! {
     ///     min_voxel_spacings: A voxel below this many target point spacings is refused.
     ///     max_memory_mib: A grid whose corrections would take more memory than this (MiB,
     ///         80 bytes each) is refused before it is built, with the size it would have had.
+    ///     global_rerun_below_fitness: A full call whose Φ ``"auto"`` made local (no voxel
+    ///         given) and whose result fits less than this share of the source runs again with
+    ///         a global Φ, and the result fitting more is returned (``stages["global_rerun"]``):
+    ///         two scans overlapping in part; 0 never.
     PyLocalSettings => LocalSettings as "LocalSettings", "fit.local" {
         kind: &str = "auto",
         auto_ratio: f64 = 400.0,
@@ -321,6 +325,7 @@ settings_class! {
         network_batch_divisor: i64 = 1,
         min_voxel_spacings: f64 = 0.5,
         max_memory_mib: f64 = 1024.0,
+        global_rerun_below_fitness: f64 = 0.35,
     }
 }
 

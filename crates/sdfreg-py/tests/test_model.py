@@ -228,6 +228,9 @@ def test_a_local_voxel_in_the_targets_units(pair) -> None:
         sdfreg.fit(target, fit=sdfreg.FitSettings(local=sdfreg.LocalSettings(voxel_size=1e-7 * extent)))
     with pytest.raises(ValueError, match="fit.local.voxel_size"):
         sdfreg.LocalSettings(voxel_size=-1.0)
+    with pytest.raises(ValueError, match="fit.local.global_rerun_below_fitness"):
+        sdfreg.LocalSettings(global_rerun_below_fitness=1.5)
+    assert sdfreg.LocalSettings().global_rerun_below_fitness == 0.35
 
 
 def test_a_local_grid_too_fine_or_too_large_is_a_value_error(pair) -> None:

@@ -254,8 +254,9 @@ def test_stages_say_what_each_stage_did(pair) -> None:
     r = sdfreg.register(source, target, **QUICK)
     st = r.stages
     assert list(st) == ["initial", "coarse_to_fine", "final_lm", "robust", "polish", "shift_search",
-                        "rescue", "swapped"]
+                        "rescue", "global_rerun", "swapped"]
     assert st["rescue"] == {"kind": "not_tried"} and st["swapped"] is False
+    assert st["global_rerun"] == {"kind": "not_tried"}
     assert st["initial"]["starts"] == 168 and not st["initial"]["given"]
     # The source is the target's own sample, moved: the polish snaps it onto those points.
     assert st["polish"]["result"] == "snapped" and r.stop_reason == st["polish"]["stop_reason"]

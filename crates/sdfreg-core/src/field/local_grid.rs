@@ -140,6 +140,18 @@ pub struct LocalSettings {
     /// A grid whose corrections would take more than this memory, MiB, is refused before it is
     /// built, with the size it would have had ([`BYTES_PER_CORRECTION`] each). Default 1024.
     pub max_memory_mib: f64,
+    /// A full call whose Φ [`ModelKind::Auto`] made local (no voxel given), and whose result
+    /// lays less than this share of the source within the inlier distance of the target (its
+    /// fitness), is run again with a global Φ, and the result fitting more is returned
+    /// ([`crate::GlobalRerunReport`]); 0 never. Default 0.35 (the robust re-run's "fits
+    /// poorly", [`crate::RobustMode::AUTO`]). The local Φ is the surface near the target's
+    /// points and only a coarse network beyond; where two scans overlap in part, the source's
+    /// other half lies in that far field. A 3DMatch fragment at its own density (redkitchen
+    /// 06→00 made 16 times denser along its surfaces, 300 000 points, 6 mm apart: 470
+    /// spacings, so local) registered 14.1° / 0.47 m off with fitness 0.291; with a global
+    /// Φ 0.82° / 0.090 m, fitness 0.502, as the 2.5 cm fragments (240 spacings, global) do.
+    /// Streets and rooms fit 0.7–1.0 of their scans and are never run again.
+    pub global_rerun_below_fitness: f64,
 }
 
 /// Memory of one correction, bytes: its value and two Adam moments (12), its corner's key (12),
@@ -167,6 +179,7 @@ impl Default for LocalSettings {
             network_batch_divisor: 1,
             min_voxel_spacings: 0.5,
             max_memory_mib: 1024.0,
+            global_rerun_below_fitness: 0.35,
         }
     }
 }
@@ -189,6 +202,10 @@ impl LocalSettings {
     /// Checks every field; the error names it (`fit.local.cells`, …).
     pub fn validate(&self) -> Result<(), crate::base::error::Error> {
         use crate::base::check;
+        check::in_unit_interval(
+            "fit.local.global_rerun_below_fitness",
+            self.global_rerun_below_fitness,
+        )?;
         check::positive("fit.local.auto_ratio", self.auto_ratio)?;
         check::count_at_least("fit.local.cells", self.cells, 1)?;
         if let Some(v) = self.voxel {
@@ -274,6 +291,12 @@ impl LocalSettings {
             )));
         }
         Ok(Some(plan.build()))
+    }
+
+    /// Whether the local kind is [`ModelKind::Auto`]'s choice alone (no voxel given), so that a
+    /// full call may fall back on a global Φ ([`Self::global_rerun_below_fitness`]).
+    pub fn chosen_by_auto(&self) -> bool {
+        self.kind == ModelKind::Auto && self.voxel.is_none() && self.voxel_size.is_none()
     }
 
     /// The voxel side for a target of median point spacing `spacing` (unit frame), or `None`

@@ -40,6 +40,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::field::baked::{BakedGrid, BAKED_HALF_EXTENT};
+use crate::field::local_grid::ModelKind;
 use crate::field::Field;
 use crate::geometry::cloud::{scaled_f32, subsample, usable, Normalization};
 use crate::pipeline::coarse_to_fine::{alternate, final_lm, kernel_at, Alternated};
@@ -47,7 +48,7 @@ use crate::pipeline::direction::{invert, swaps};
 use crate::pipeline::multistart::initial_hypotheses;
 use crate::pipeline::polish::polish;
 use crate::pipeline::registration::{measure, Registration, Trace};
-use crate::pipeline::report::{InitialReport, RescueReport, Stage, StageTimes};
+use crate::pipeline::report::{GlobalRerunReport, InitialReport, RescueReport, Stage, StageTimes};
 use crate::pipeline::rerun::{robust_rerun, with_other_run};
 use crate::pipeline::robust::{outside_share, KernelPolicy, RobustMode};
 use crate::pipeline::scale::scale_starts;
@@ -111,7 +112,38 @@ fn one_way(
         &norm, &fitter, &drawn, source, rng, init, settings, true, progress,
     )?;
     r.stage_times.prefit = prefit_time;
+    let local = &settings.fit.local;
+    if fitter.is_local() && local.chosen_by_auto() && r.fitness < local.global_rerun_below_fitness {
+        let mut global = settings.clone();
+        global.fit.local.kind = ModelKind::Global;
+        let other = one_way(source, target, init, &global, progress)?;
+        r = global_rerun(r, other);
+    }
     Ok(r)
+}
+
+/// Of a scene's full call with a local Φ (`local`) and its run with a global Φ (`global`), the
+/// one fitting more of the source (the local one on a tie), with
+/// [`Stages::global_rerun`](crate::Stages) saying which and the other's time in `other_run`.
+fn global_rerun(local: Registration, global: Registration) -> Registration {
+    let (local_fitness, global_fitness) = (local.fitness, global.fitness);
+    let (kept, other, report) = if global_fitness > local_fitness {
+        let report = GlobalRerunReport::Kept {
+            local_fitness,
+            global_fitness,
+        };
+        (global, local, report)
+    } else {
+        let report = GlobalRerunReport::Rejected {
+            local_fitness,
+            global_fitness,
+        };
+        (local, global, report)
+    };
+    let mut kept = with_other_run(kept, &other);
+    kept.stage_times.other_run += other.stage_times.prefit;
+    kept.stages.global_rerun = report;
+    kept
 }
 
 /// [`crate::SdfModel::register`] (`refine` false), [`crate::SdfModel::register_refined`] and

@@ -8,8 +8,8 @@ use nalgebra::{Isometry3, Matrix4, Matrix6, Point3, SMatrix, Similarity3};
 use crate::geometry::cloud::Normalization;
 use crate::pipeline::polish::PolishOutcome;
 use crate::pipeline::report::{
-    CoarseToFineReport, FinalLmReport, InitialReport, PolishReport, PolishResult, PoseChange,
-    RescueReport, RobustReport, ShiftSearchReport, StageTimes, Stages,
+    CoarseToFineReport, FinalLmReport, GlobalRerunReport, InitialReport, PolishReport,
+    PolishResult, PoseChange, RescueReport, RobustReport, ShiftSearchReport, StageTimes, Stages,
 };
 use crate::pipeline::settings::RegisterSettings;
 use crate::pipeline::shift_search::Searched;
@@ -158,6 +158,7 @@ pub(crate) fn measure<S: Surface>(
             change: change(&t.polished.pose, &t.searched.pose),
         },
         rescue: RescueReport::NotTried,
+        global_rerun: GlobalRerunReport::NotTried,
         swapped: false,
     };
     let q = quality(

@@ -226,6 +226,31 @@ pub enum RescueReport {
     },
 }
 
+/// Whether a full call whose Φ was local by [`crate::ModelKind::Auto`]'s choice ran again with a
+/// global Φ ([`crate::LocalSettings::global_rerun_below_fitness`]): its result fitted poorly.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+#[non_exhaustive]
+pub enum GlobalRerunReport {
+    /// Not tried: Φ global, or given as local, or the local result fitted well enough.
+    #[default]
+    NotTried,
+    /// The global Φ's result fitted more of the source and was returned.
+    Kept {
+        /// The local Φ's result's fitness.
+        local_fitness: f64,
+        /// The global Φ's result's fitness.
+        global_fitness: f64,
+    },
+    /// The global Φ's result fitted no more; the local one was returned.
+    Rejected {
+        /// The local Φ's result's fitness.
+        local_fitness: f64,
+        /// The global Φ's result's fitness.
+        global_fitness: f64,
+    },
+}
+
 /// What each stage of the returned run did, in pipeline order.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Stages {
@@ -244,6 +269,9 @@ pub struct Stages {
     /// The multi-start's rescue of a given guess.
     #[serde(default)]
     pub rescue: RescueReport,
+    /// A scene's full call run again with a global Φ.
+    #[serde(default)]
+    pub global_rerun: GlobalRerunReport,
     /// Whether the call registered the target onto the source and returned the inverse (a
     /// source with many times the target's points, [`crate::RegisterSettings::swap_ratio`]):
     /// then the reports above are of that run.

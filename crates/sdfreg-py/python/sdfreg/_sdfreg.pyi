@@ -168,6 +168,7 @@ class LocalSettings:
         network_batch_divisor: int = 1,
         min_voxel_spacings: float = 0.5,
         max_memory_mib: float = 1024.0,
+        global_rerun_below_fitness: float = 0.35,
     ) -> LocalSettings: ...
     @property
     def kind(self) -> str: ...
@@ -203,6 +204,8 @@ class LocalSettings:
     def min_voxel_spacings(self) -> float: ...
     @property
     def max_memory_mib(self) -> float: ...
+    @property
+    def global_rerun_below_fitness(self) -> float: ...
 
 @final
 class MultistartSettings:
@@ -530,7 +533,9 @@ class Registration:
         ``"off"``, ``"applied"``, ``"snapped"`` or ``"undone"``; ``iterations``,
         ``stop_reason``), ``shift_search`` (``peaks``, ``taken``, ``fitness_gain``) and
         ``rescue`` (``kind``: ``"not_tried"``, ``"kept"`` or ``"rejected"``, with both results'
-        outside shares and fitnesses). Each stage that
+        outside shares and fitnesses), ``global_rerun`` (a scene's full call run again with a
+        global Φ: ``kind`` ``"not_tried"``, ``"kept"`` or ``"rejected"``, with both
+        fitnesses). Each stage that
         can move the pose has a ``change``: ``rotation_deg`` and ``translation`` (RMS
         displacement of the source points, the clouds' units). ``swapped``: True when the
         target was registered onto the source and the result inverted (``swap_ratio``); the
