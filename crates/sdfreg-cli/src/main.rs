@@ -391,12 +391,21 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
             .map_err(anyhow::Error::from)
     } else if is_model(&a.target) {
         let model = SdfModel::load(&a.target)?;
-        if a.refine {
+        let r = if a.refine {
             model.register_refined(&source, init.as_ref(), &settings)
         } else {
             model.register(&source, init.as_ref(), &settings)
         }
-        .map_err(anyhow::Error::from)
+        .map_err(anyhow::Error::from)?;
+        // A full call would run again with a global Φ here; a stored model cannot.
+        if model.fits_poorly(&r, &settings) {
+            eprintln!(
+                "sdfreg: warning: the source fits {:.3} of the local (scene) model {}; scans that overlap only in part register more reliably against a global one (`sdfreg fit --model global`)",
+                r.fitness,
+                a.target.display()
+            );
+        }
+        Ok(r)
     } else {
         if a.refine {
             bail!("--refine: only with a model (.sdfm) as TARGET");

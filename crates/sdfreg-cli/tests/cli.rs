@@ -1164,3 +1164,42 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
 }
+
+#[test]
+fn a_source_that_fits_a_local_model_poorly_gets_a_warning_naming_the_global_kind() {
+    use rand::Rng;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    pair(d);
+    // Points drawn anywhere in the blob's box: they lie on no surface of it.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+    let scattered: Vec<Point3<f64>> = (0..600)
+        .map(|_| Point3::from(Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0))))
+        .collect();
+    write_xyz(&d.join("scattered.xyz"), &scattered);
+    for kind in ["local", "global"] {
+        let out = sdfreg()
+            .args(["fit", "--model-prefit-steps", "200", "--model", kind, "-o"])
+            .arg(d.join(format!("{kind}.sdfm")))
+            .arg(d.join("tgt.ply"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+    }
+    let warned = |kind: &str, source: &str| {
+        let model = d.join(format!("{kind}.sdfm"));
+        let out = sdfreg()
+            .arg("register")
+            .arg(d.join(source))
+            .arg(&model)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(out.status.success(), "{err}");
+        err.contains("warning: the source fits") && err.contains("sdfreg fit --model global")
+    };
+    assert!(warned("local", "scattered.xyz"));
+    assert!(!warned("global", "scattered.xyz"));
+    assert!(!warned("local", "src.xyz"));
+}

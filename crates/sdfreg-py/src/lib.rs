@@ -102,6 +102,12 @@ use settings::{
 ///         fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform (with
 ///         ``scale=True``: not a positive scale times a rotation); a setting is out of range
 ///         (``scale_range`` with min ≥ max or a bound ≤ 0).
+///
+/// Warns:
+///     UserWarning: the target is a local (scene) :class:`SdfModel` and the result fits less
+///         than ``LocalSettings.global_rerun_below_fitness`` of the source (a full call would
+///         run again with a global Φ): scans that overlap only in part register more reliably
+///         against a model fitted with ``model="global"``.
 #[pyfunction]
 #[pyo3(signature = (source, target, *, init = None, refine = None, **settings))]
 fn register<'py>(
@@ -146,6 +152,16 @@ fn register<'py>(
             Target::Mesh(mesh) => mesh.register(&source, init.as_ref(), &s),
         })
         .map_err(error::registration)?;
+    if let Target::Model(model) = &target {
+        if model.fits_poorly(&result, &s) {
+            let message = format!(
+                "the source fits {:.3} of a local (scene) model; scans that overlap only in part register more reliably against a global one (sdfreg.fit(target, model=\"global\"))",
+                result.fitness
+            );
+            let warning = py.get_type::<pyo3::exceptions::PyUserWarning>();
+            PyErr::warn(py, &warning, &std::ffi::CString::new(message)?, 1)?;
+        }
+    }
     Ok(PyRegistration(result))
 }
 

@@ -259,3 +259,21 @@ def test_an_unknown_model_kind_is_a_value_error(pair, call) -> None:
             sdfreg.register(source, target, model="scene")
         else:
             sdfreg.register_many([(source, target)], model="scene")
+
+
+def test_a_source_fitting_a_local_model_poorly_warns_naming_the_global_kind(pair) -> None:
+    """A full call would run again with a global Φ; a stored local model cannot, and says so."""
+    import warnings
+
+    _, target, _ = pair
+    scattered = np.random.default_rng(4).uniform(-1.0, 1.0, (600, 3)) * np.ptp(target, axis=0) / 2
+    scattered += target.mean(axis=0)
+    local = sdfreg.fit(target, model="local", fit=sdfreg.FitSettings(model_prefit_steps=200))
+    glob = sdfreg.fit(target, model="global", fit=sdfreg.FitSettings(model_prefit_steps=200))
+    with pytest.warns(UserWarning, match=r"fits 0\.[0-9]+ of a local \(scene\) model.*model=\"global\""):
+        r = sdfreg.register(scattered, local)
+    assert r.fitness < 0.35
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sdfreg.register(scattered, glob)
+        sdfreg.register(target, local)

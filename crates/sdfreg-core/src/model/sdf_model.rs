@@ -296,6 +296,15 @@ impl SdfModel {
         self.seed
     }
 
+    /// Whether `r`, a registration against this model with `settings`, would have run again
+    /// with a global Φ in a full call ([`crate::LocalSettings::global_rerun_below_fitness`]):
+    /// the model is local and `r` fits less than that share of the source. A stored model
+    /// cannot; the CLI and Python warn, naming the global kind (scans that overlap only in
+    /// part register more reliably against it).
+    pub fn fits_poorly(&self, r: &Registration, settings: &RegisterSettings) -> bool {
+        self.kind() == ModelKind::Local && r.fitness < settings.fit.local.global_rerun_below_fitness
+    }
+
     /// The kind of Φ the fit made: [`ModelKind::Global`] or [`ModelKind::Local`]
     /// ([`crate::LocalSettings::kind`] `Auto` decided from the target).
     pub fn kind(&self) -> ModelKind {

@@ -686,6 +686,12 @@ def register(
             fewer than 10 points or no extent; ``init`` is not a rigid 4×4 transform (with
             ``scale=True``: not a positive scale times a rotation); a setting is out of range
             (``scale_range`` with min ≥ max or a bound ≤ 0).
+
+    Warns:
+        UserWarning: the target is a local (scene) :class:`SdfModel` and the result fits less
+            than ``LocalSettings.global_rerun_below_fitness`` of the source (a full call would
+            run again with a global Φ): scans that overlap only in part register more reliably
+            against a model fitted with ``model="global"``.
     """
 
 def align(
