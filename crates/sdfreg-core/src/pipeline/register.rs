@@ -584,8 +584,9 @@ mod tests {
 
     #[test]
     fn a_rescue_must_leave_less_outside_without_fitting_less() {
-        // A guess whose result leaves most of the source outside and fits little (the street a
-        // quarter turn off, `tests/scenes.rs`), and a multi-start that lands: rescued.
+        // A guess whose result leaves most of the source outside and fits little, and a
+        // multi-start that lands (illustrative shares, of the kind of the street a quarter
+        // turn off in `tests/scenes.rs`): rescued.
         assert!(rescued([0.62, 0.31], [0.08, 0.86]));
         // 3DMatch 06→00 from the published pose with a local Φ: the multi-start's wrong pose
         // leaves 1 % less outside but fits a third less: the guess's result stays.
