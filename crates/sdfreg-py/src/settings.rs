@@ -352,6 +352,9 @@ settings_class! {
     ///     scene_turn_deg: When Φ is local (a scene), the starts also turn the source about
     ///         its axis of least spread (a scan's vertical) by each multiple of this angle that
     ///         is not one of 90°, degrees; 0 none, else at least 5.
+    ///     scene_as_given: When Φ is local (a scene), one more start: the source where it was
+    ///         given (the identity, no centroid alignment), as consecutive scans and scans in
+    ///         one site frame are.
     PyMultistartSettings => MultistartSettings as "MultistartSettings", "multistart" {
         enabled: bool = true,
         offset: f64 = 0.1,
@@ -367,6 +370,7 @@ settings_class! {
         rescue: bool = true,
         grid_cells: i64 = 32,
         scene_turn_deg: f64 = 30.0,
+        scene_as_given: bool = true,
     }
 }
 

@@ -228,6 +228,7 @@ class MultistartSettings:
         rescue: bool = True,
         grid_cells: int = 32,
         scene_turn_deg: float = 30.0,
+        scene_as_given: bool = True,
     ) -> MultistartSettings: ...
     @property
     def enabled(self) -> bool: ...
@@ -257,6 +258,8 @@ class MultistartSettings:
     def grid_cells(self) -> int: ...
     @property
     def scene_turn_deg(self) -> float: ...
+    @property
+    def scene_as_given(self) -> bool: ...
 
 @final
 class CoarseToFineSettings:
