@@ -108,8 +108,8 @@ pub struct Common {
     #[arg(long)]
     pub robust_below_fitness: Option<f64>,
     /// With --robust-mode auto: the share of the source outside the target's coverage (beyond
-    /// 10 target point spacings) above which the robust re-run is tried, kept if it fits more
-    /// points; 1 never [default: 0.2].
+    /// 10 target point spacings) above which the robust re-run is tried when the result also
+    /// fits less than 1 minus it, kept if it fits more points; 1 never [default: 0.2].
     #[arg(long)]
     pub robust_outside_share: Option<f64>,
     /// Also start the multi-start shifted by ± this along each axis (fraction of the target's

@@ -496,7 +496,8 @@ settings_class! {
 ///         source points is redone with the kernel and a multi-start tie of ``rerun_tie``,
 ///         kept if it fits ``gain`` times as many; a result leaving more than
 ///         ``outside_share`` of the source outside the target's coverage — beyond 10 target
-///         point spacings — is redone too, kept if it fits more points), ``"on"`` (the kernel from the start: scans
+///         point spacings — and fitting less than ``1 - outside_share`` of it is redone too,
+///         kept if it fits more points), ``"on"`` (the kernel from the start: scans
 ///         that overlap in part), ``"off"`` (least squares) or ``"fixed"`` (the kernel with
 ///         the fixed ``scale``).
 ///     below_fitness: See ``mode="auto"``.

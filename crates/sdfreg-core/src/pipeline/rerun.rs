@@ -40,9 +40,12 @@ pub(crate) fn rerun_settings(
     else {
         return None;
     };
+    // Points outside the coverage that the fitness counts as inliers (within the inlier
+    // distance, as a LiDAR scan's far returns between the other scan's rings are) give a
+    // kernel nothing to weigh down and a re-run no fitness to gain.
     let cause = if least.fitness < below_fitness {
         RerunCause::LowFitness
-    } else if least.outside_share > outside_share {
+    } else if least.outside_share > outside_share && least.fitness < 1.0 - outside_share {
         RerunCause::Outside
     } else {
         return None;
@@ -152,6 +155,10 @@ mod tests {
         assert_eq!(rerun.multistart.tie, 0.05);
         assert!(keep_rerun(&s.robust.mode, cause, 0.418, 0.485));
         assert!(!keep_rerun(&s.robust.mode, cause, 0.418, 0.418));
+        // A quarter outside the coverage yet 0.99 within the inlier distance (the outdoor
+        // LiDAR pair's source filtered to 5 cm voxels, at the right pose): no re-run.
+        assert!(rerun_settings(&s, fit(0.99, 0.25)).is_none());
+        assert!(rerun_settings(&s, fit(0.79, 0.25)).is_some());
         // Not in the other modes.
         let mut off = s.clone();
         off.robust.mode = RobustMode::Off;
