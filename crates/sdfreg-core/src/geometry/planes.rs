@@ -97,6 +97,40 @@ impl PlaneCache {
         tree.nearest_n::<SquaredEuclidean>(xf, count)
     }
 
+    /// The nearest target point of `x`, for [`TargetPlanes::residual`] and the polish's snap
+    /// (a cache used for one of them only, not for [`local_plane`]): after a query from
+    /// `base` whose nearest lay at `radii[0]`, the nearest of a point `δ` away lies within
+    /// `radii[0] + δ`, and the k-d tree is searched within that bound (the same point an
+    /// unbounded search finds; unbounded when nothing is found within it, with the f32
+    /// margin).
+    pub(crate) fn nearest_one(
+        &mut self,
+        tree: &Tree,
+        x: &Point3<f64>,
+    ) -> kiddo::NearestNeighbour<f32, u32> {
+        let xf = [x.x as f32, x.y as f32, x.z as f32];
+        let bounded = match (self.base, self.radii.first()) {
+            (Some(base), Some(&near)) => {
+                let bound = near + (x.coords - base).norm();
+                let bound2 = bound * bound * (1.0 + BOUND_MARGIN) + f64::MIN_POSITIVE;
+                tree.nearest_n_within::<SquaredEuclidean>(
+                    &xf,
+                    bound2 as f32,
+                    NonZeroUsize::MIN,
+                    true,
+                )
+                .first()
+                .copied()
+            }
+            _ => None,
+        };
+        let nn = bounded.unwrap_or_else(|| tree.nearest_one::<SquaredEuclidean>(&xf));
+        self.base = Some(Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
+        self.radii.clear();
+        self.radii.push((nn.distance as f64).sqrt());
+        nn
+    }
+
     /// Queries the `k` (and, for the next iterations' gap, `k + 1`) nearest target points of
     /// `x` and refits the plane unless they are the same points in the same order; `None`
     /// (and no plane) when the nearest is farther than `max_d2` (squared).
@@ -271,7 +305,8 @@ impl TargetPlanes {
 
     /// Distance of `x` to the plane of its nearest target point, signed along that plane's
     /// normal, and the normal; `None` when that point is farther than `max_d2` (squared).
-    /// One nearest-point query each call; `cache` keeps the plane of the last nearest point.
+    /// One nearest-point query each call, bounded by the last one's distance plus the move
+    /// ([`PlaneCache::nearest_one`]); `cache` keeps the plane of the last nearest point.
     /// (Skipping the query while the nearest certainly stays the same, by the gap between the
     /// two nearest distances as [`PlaneCache`] does for `k` points, gave the same numbers but
     /// cost more: the two-nearest query outweighed the queries saved — a bunny pair's polish
@@ -284,7 +319,7 @@ impl TargetPlanes {
         max_d2: f64,
         cache: &mut PlaneCache,
     ) -> Option<(f64, Vector3<f64>)> {
-        let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+        let nn = cache.nearest_one(tree, x);
         if nn.distance as f64 > max_d2 {
             return None;
         }
@@ -406,6 +441,44 @@ mod tests {
                 };
                 assert_eq!(key(&found), key(&fresh), "point {i} step {step}");
                 cache.refresh(&target, &tree, &x, n - 1, f64::INFINITY);
+            }
+        }
+        assert!(
+            bounded * 10 > total * 9,
+            "{bounded} of {total} searches bounded"
+        );
+    }
+
+    #[test]
+    fn the_nearest_point_searched_within_the_last_distance_plus_the_move_is_the_unbounded_ones() {
+        // The same walk for the nearest point alone (a scene's planes at the target's points,
+        // the snap): searched within the last nearest distance plus the step, the same point
+        // at the same distance as an unbounded search, also from outside the target.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(4000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let tree = crate::geometry::tree::build_tree(&target);
+        let (mut bounded, mut total) = (0, 0);
+        for (i, p) in target.iter().step_by(53).enumerate() {
+            let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) * (1.02 + 0.01 * i as f64);
+            let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, (i as f64).sin()));
+            let mut cache = PlaneCache::default();
+            let mut turned = 0.0;
+            for step in 0..30 {
+                turned += 0.005 + 0.05 * ((step * 7 + i) % 5) as f64 / 4.0;
+                let x = Point3::from(nalgebra::Rotation3::from_axis_angle(&axis, turned) * q);
+                let fresh =
+                    tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+                bounded += usize::from(cache.base.is_some());
+                total += 1;
+                let found = cache.nearest_one(&tree, &x);
+                assert_eq!(
+                    (found.item, found.distance.to_bits()),
+                    (fresh.item, fresh.distance.to_bits()),
+                    "point {i} step {step}"
+                );
             }
         }
         assert!(

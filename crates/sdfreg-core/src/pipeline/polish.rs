@@ -34,14 +34,13 @@
 
 use std::sync::OnceLock;
 
-use kiddo::SquaredEuclidean;
 use nalgebra::{Isometry3, Matrix6, Point3, SMatrix, SVector, Vector3, Vector6};
 use rayon::prelude::*;
 
 use crate::base::check;
 use crate::base::error::Error;
 use crate::geometry::cloud::{scaled_f32, transformed_f32};
-use crate::geometry::planes::{local_plane, point_normal, TargetPlanes};
+use crate::geometry::planes::{local_plane, point_normal, PlaneCache, TargetPlanes};
 use crate::geometry::se3::{exp_se3, log_se3, similarity_step};
 use crate::geometry::tree::{median_nn, Tree};
 use crate::solve::kernel::{inlier_scale, mad_scale, Kernel};
@@ -680,8 +679,8 @@ fn snap(
         s,
         Residuals::Points,
         0.0,
-        |x, _: &mut ()| {
-            let nn = tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
+        |x, cache: &mut PlaneCache| {
+            let nn = cache.nearest_one(tree, x);
             if nn.distance as f64 > s.max_distance * s.max_distance {
                 return None;
             }
