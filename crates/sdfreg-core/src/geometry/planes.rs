@@ -131,6 +131,19 @@ impl PlaneCache {
         nn
     }
 
+    /// Whether, by the last [`Self::nearest_one`], the nearest target point of `x` certainly
+    /// lies farther than `√max_d2` (the last nearest distance less the move, with the f32
+    /// margin): a point outside the gate need not be searched again while it stays there.
+    pub(crate) fn beyond(&self, x: &Point3<f64>, max_d2: f64) -> bool {
+        match (self.base, self.radii.first()) {
+            (Some(base), Some(&near)) => {
+                let low = near - (x.coords - base).norm() - ORDER_MARGIN * (1.0 + near);
+                low > 0.0 && low * low > max_d2
+            }
+            _ => false,
+        }
+    }
+
     /// Queries the `k` (and, for the next iterations' gap, `k + 1`) nearest target points of
     /// `x` and refits the plane unless they are the same points in the same order; `None`
     /// (and no plane) when the nearest is farther than `max_d2` (squared).
@@ -319,6 +332,9 @@ impl TargetPlanes {
         max_d2: f64,
         cache: &mut PlaneCache,
     ) -> Option<(f64, Vector3<f64>)> {
+        if cache.beyond(x, max_d2) {
+            return None;
+        }
         let nn = cache.nearest_one(tree, x);
         if nn.distance as f64 > max_d2 {
             return None;
@@ -453,14 +469,15 @@ mod tests {
     fn the_nearest_point_searched_within_the_last_distance_plus_the_move_is_the_unbounded_ones() {
         // The same walk for the nearest point alone (a scene's planes at the target's points,
         // the snap): searched within the last nearest distance plus the step, the same point
-        // at the same distance as an unbounded search, also from outside the target.
+        // at the same distance as an unbounded search, also from outside the target; and a
+        // point said to lie beyond a gate without a search does.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
         let target: Vec<[f32; 3]> = crate::sim::shapes::blob(4000, &mut rng)
             .iter()
             .map(|p| [p.x as f32, p.y as f32, p.z as f32])
             .collect();
         let tree = crate::geometry::tree::build_tree(&target);
-        let (mut bounded, mut total) = (0, 0);
+        let (mut bounded, mut total, mut beyond) = (0, 0, 0);
         for (i, p) in target.iter().step_by(53).enumerate() {
             let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) * (1.02 + 0.01 * i as f64);
             let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, (i as f64).sin()));
@@ -473,6 +490,13 @@ mod tests {
                     tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
                 bounded += usize::from(cache.base.is_some());
                 total += 1;
+                // A point said to be beyond a gate is beyond it.
+                for gate in [0.02f64, 0.05, 0.1] {
+                    if cache.beyond(&x, gate * gate) {
+                        beyond += 1;
+                        assert!(fresh.distance as f64 > gate * gate, "point {i} step {step}");
+                    }
+                }
                 let found = cache.nearest_one(&tree, &x);
                 assert_eq!(
                     (found.item, found.distance.to_bits()),
@@ -484,6 +508,10 @@ mod tests {
         assert!(
             bounded * 10 > total * 9,
             "{bounded} of {total} searches bounded"
+        );
+        assert!(
+            beyond > total / 10,
+            "{beyond} of {total} said beyond a gate"
         );
     }
 

@@ -680,8 +680,12 @@ fn snap(
         Residuals::Points,
         0.0,
         |x, cache: &mut PlaneCache| {
+            let max_d2 = s.max_distance * s.max_distance;
+            if cache.beyond(x, max_d2) {
+                return None;
+            }
             let nn = cache.nearest_one(tree, x);
-            if nn.distance as f64 > s.max_distance * s.max_distance {
+            if nn.distance as f64 > max_d2 {
                 return None;
             }
             let i = nn.item as usize;
