@@ -86,15 +86,41 @@ impl PlaneCache {
         n: usize,
     ) -> Vec<kiddo::NearestNeighbour<f32, u32>> {
         let count = NonZeroUsize::new(n).unwrap();
-        if let (Some(base), Some(&far)) = (self.base, self.radii.get(n - 1)) {
-            let bound = far + (x.coords - base).norm();
-            let bound2 = bound * bound * (1.0 + BOUND_MARGIN) + f64::MIN_POSITIVE;
-            let found = tree.nearest_n_within::<SquaredEuclidean>(xf, bound2 as f32, count, true);
+        if let Some(bound2) = self.bound2(x, n) {
+            let found = tree.nearest_n_within::<SquaredEuclidean>(xf, bound2, count, true);
             if found.len() == n {
                 return found;
             }
         }
         tree.nearest_n::<SquaredEuclidean>(xf, count)
+    }
+
+    /// The squared bound within which the `n` nearest target points of `x` lie, after a query
+    /// from `base` whose `n`-th nearest lay at `radii[n - 1]`: that distance plus the move,
+    /// with a margin for the k-d tree's f32 distances; `None` without such a query.
+    fn bound2(&self, x: &Point3<f64>, n: usize) -> Option<f32> {
+        let (base, far) = (self.base?, *self.radii.get(n - 1)?);
+        let bound = far + (x.coords - base).norm();
+        Some((bound * bound * (1.0 + BOUND_MARGIN) + f64::MIN_POSITIVE) as f32)
+    }
+
+    /// The nearest target point of `x` when it lies within `√max_d2`, else `None` — without a
+    /// search while [`Self::beyond`] says so, else by [`Self::nearest_one`].
+    pub(crate) fn nearest_within(
+        &mut self,
+        tree: &Tree,
+        x: &Point3<f64>,
+        max_d2: f64,
+    ) -> Option<kiddo::NearestNeighbour<f32, u32>> {
+        if self.beyond(x, max_d2) {
+            return None;
+        }
+        let nn = self.nearest_one(tree, x);
+        if nn.distance as f64 > max_d2 {
+            None
+        } else {
+            Some(nn)
+        }
     }
 
     /// The nearest target point of `x`, for [`TargetPlanes::residual`] and the polish's snap
@@ -103,27 +129,13 @@ impl PlaneCache {
     /// `radii[0] + δ`, and the k-d tree is searched within that bound (the same point an
     /// unbounded search finds; unbounded when nothing is found within it, with the f32
     /// margin).
-    pub(crate) fn nearest_one(
-        &mut self,
-        tree: &Tree,
-        x: &Point3<f64>,
-    ) -> kiddo::NearestNeighbour<f32, u32> {
+    fn nearest_one(&mut self, tree: &Tree, x: &Point3<f64>) -> kiddo::NearestNeighbour<f32, u32> {
         let xf = [x.x as f32, x.y as f32, x.z as f32];
-        let bounded = match (self.base, self.radii.first()) {
-            (Some(base), Some(&near)) => {
-                let bound = near + (x.coords - base).norm();
-                let bound2 = bound * bound * (1.0 + BOUND_MARGIN) + f64::MIN_POSITIVE;
-                tree.nearest_n_within::<SquaredEuclidean>(
-                    &xf,
-                    bound2 as f32,
-                    NonZeroUsize::MIN,
-                    true,
-                )
+        let bounded = self.bound2(x, 1).and_then(|bound2| {
+            tree.nearest_n_within::<SquaredEuclidean>(&xf, bound2, NonZeroUsize::MIN, true)
                 .first()
                 .copied()
-            }
-            _ => None,
-        };
+        });
         let nn = bounded.unwrap_or_else(|| tree.nearest_one::<SquaredEuclidean>(&xf));
         self.base = Some(Vector3::new(xf[0] as f64, xf[1] as f64, xf[2] as f64));
         self.radii.clear();
@@ -134,7 +146,7 @@ impl PlaneCache {
     /// Whether, by the last [`Self::nearest_one`], the nearest target point of `x` certainly
     /// lies farther than `√max_d2` (the last nearest distance less the move, with the f32
     /// margin): a point outside the gate need not be searched again while it stays there.
-    pub(crate) fn beyond(&self, x: &Point3<f64>, max_d2: f64) -> bool {
+    fn beyond(&self, x: &Point3<f64>, max_d2: f64) -> bool {
         match (self.base, self.radii.first()) {
             (Some(base), Some(&near)) => {
                 let low = near - (x.coords - base).norm() - ORDER_MARGIN * (1.0 + near);
@@ -332,13 +344,7 @@ impl TargetPlanes {
         max_d2: f64,
         cache: &mut PlaneCache,
     ) -> Option<(f64, Vector3<f64>)> {
-        if cache.beyond(x, max_d2) {
-            return None;
-        }
-        let nn = cache.nearest_one(tree, x);
-        if nn.distance as f64 > max_d2 {
-            return None;
-        }
+        let nn = cache.nearest_within(tree, x, max_d2)?;
         if cache.items.first() != Some(&nn.item) {
             cache.items.clear();
             cache.items.push(nn.item);
@@ -423,28 +429,48 @@ mod tests {
         assert!(skipped * 3 > total, "{skipped} of {total} queries skipped");
     }
 
+    /// One point's positions, step by step.
+    type Walk = Vec<Point3<f64>>;
+
+    /// A blob of 4000 target points (seeded), and points carried round by a turn from every
+    /// 53rd of them pushed out by `1.02 + spread · i` (start `i`), as the polish moves a
+    /// source turned 40° off: 30 steps from a hundredth to a tenth of the extent each.
+    fn turned_walks(seed: u64, spread: f64) -> (Vec<[f32; 3]>, Tree, Vec<Walk>) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(4000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let tree = crate::geometry::tree::build_tree(&target);
+        let walks = (target.iter().step_by(53).enumerate())
+            .map(|(i, p)| {
+                let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64)
+                    * (1.02 + spread * i as f64);
+                let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, (i as f64).sin()));
+                let mut turned = 0.0;
+                (0..30)
+                    .map(|step| {
+                        turned += 0.005 + 0.05 * ((step * 7 + i) % 5) as f64 / 4.0;
+                        Point3::from(nalgebra::Rotation3::from_axis_angle(&axis, turned) * q)
+                    })
+                    .collect()
+            })
+            .collect();
+        (target, tree, walks)
+    }
+
     #[test]
     fn a_search_bounded_by_the_last_query_finds_what_an_unbounded_one_does() {
         // Points carried round by a turn, as the polish moves a source turned 40° off: steps
         // from a hundredth to a tenth of the extent, too large for the cache to hold, each
         // searched within the last query's farthest distance plus the step. The same target
         // points, in the same order, at the same distances as an unbounded search.
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(4000, &mut rng)
-            .iter()
-            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-            .collect();
-        let tree = crate::geometry::tree::build_tree(&target);
+        let (target, tree, walks) = turned_walks(11, 0.0);
         let n = 6; // k + 1 for the polish's 5 neighbours
         let (mut bounded, mut total) = (0, 0);
-        for (i, p) in target.iter().step_by(53).enumerate() {
-            let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) * 1.02;
-            let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, (i as f64).sin()));
+        for (i, walk) in walks.iter().enumerate() {
             let mut cache = PlaneCache::default();
-            let mut turned = 0.0;
-            for step in 0..30 {
-                turned += 0.005 + 0.05 * ((step * 7 + i) % 5) as f64 / 4.0;
-                let x = Point3::from(nalgebra::Rotation3::from_axis_angle(&axis, turned) * q);
+            for (step, &x) in walk.iter().enumerate() {
                 let xf = [x.x as f32, x.y as f32, x.z as f32];
                 let fresh = tree.nearest_n::<SquaredEuclidean>(&xf, NonZeroUsize::new(n).unwrap());
                 bounded += usize::from(cache.base.is_some());
@@ -471,21 +497,11 @@ mod tests {
         // the snap): searched within the last nearest distance plus the step, the same point
         // at the same distance as an unbounded search, also from outside the target; and a
         // point said to lie beyond a gate without a search does.
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
-        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(4000, &mut rng)
-            .iter()
-            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
-            .collect();
-        let tree = crate::geometry::tree::build_tree(&target);
+        let (_, tree, walks) = turned_walks(12, 0.01);
         let (mut bounded, mut total, mut beyond) = (0, 0, 0);
-        for (i, p) in target.iter().step_by(53).enumerate() {
-            let q = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64) * (1.02 + 0.01 * i as f64);
-            let axis = nalgebra::Unit::new_normalize(Vector3::new(0.3, 1.0, (i as f64).sin()));
+        for (i, walk) in walks.iter().enumerate() {
             let mut cache = PlaneCache::default();
-            let mut turned = 0.0;
-            for step in 0..30 {
-                turned += 0.005 + 0.05 * ((step * 7 + i) % 5) as f64 / 4.0;
-                let x = Point3::from(nalgebra::Rotation3::from_axis_angle(&axis, turned) * q);
+            for (step, &x) in walk.iter().enumerate() {
                 let fresh =
                     tree.nearest_one::<SquaredEuclidean>(&[x.x as f32, x.y as f32, x.z as f32]);
                 bounded += usize::from(cache.base.is_some());

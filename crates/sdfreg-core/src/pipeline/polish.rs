@@ -680,14 +680,7 @@ fn snap(
         Residuals::Points,
         0.0,
         |x, cache: &mut PlaneCache| {
-            let max_d2 = s.max_distance * s.max_distance;
-            if cache.beyond(x, max_d2) {
-                return None;
-            }
-            let nn = cache.nearest_one(tree, x);
-            if nn.distance as f64 > max_d2 {
-                return None;
-            }
+            let nn = cache.nearest_within(tree, x, s.max_distance * s.max_distance)?;
             let i = nn.item as usize;
             let n = (*normals[i].get_or_init(|| point_normal(points, tree, i, k)))?;
             let q = points[i];
