@@ -16,6 +16,8 @@
 //!
 //! Entry point: [`initial_hypotheses`].
 
+use std::num::NonZeroUsize;
+
 use kiddo::SquaredEuclidean;
 use nalgebra::{
     Isometry3, Matrix3, Point3, Rotation3, Translation3, Unit, UnitQuaternion, Vector3,
@@ -231,14 +233,26 @@ pub(crate) fn solver_score(tree: &Tree, points: &[Point3<f64>], lm: &Lm, tau2: f
 }
 
 /// Mean of the `moved` points' squared nearest-target distances times `factor`, each truncated at
-/// `tau2`.
+/// `tau2`. The k-d tree is searched within the truncation only (with a margin for its f32
+/// distances): a point with no target point there scores `tau2` whatever its nearest, and a
+/// wrong start's points far from the target no longer search the whole tree.
 fn moved_score(tree: &Tree, moved: &[[f32; 3]], factor: f64, tau2: f64) -> f64 {
+    let bound2 = (tau2 / factor * (1.0 + TRUNCATION_MARGIN)) as f32;
     let sum: f64 = moved
         .iter()
-        .map(|x| (tree.nearest_one::<SquaredEuclidean>(x).distance as f64 * factor).min(tau2))
+        .map(|x| {
+            tree.nearest_n_within::<SquaredEuclidean>(x, bound2, NonZeroUsize::MIN, false)
+                .first()
+                .map_or(tau2, |nn| (nn.distance as f64 * factor).min(tau2))
+        })
         .sum();
     sum / moved.len().max(1) as f64
 }
+
+/// Relative margin on the squared truncation that [`moved_score`] searches within: far above
+/// the rounding of the k-d tree's f32 distances, so that a point beyond it is certainly beyond
+/// the truncation.
+const TRUNCATION_MARGIN: f64 = 1e-3;
 
 /// Index of the candidate with the least rotation among those whose score is within
 /// `(1 + tie)` of the best (the least-motion prior for symmetric shapes).
@@ -404,6 +418,45 @@ pub(crate) fn initial_hypotheses<S: Surface>(
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn a_score_searched_within_the_truncation_is_the_unbounded_ones_to_the_bit() {
+        // Source points from on the target to far beyond the truncation, at scale factors
+        // about 1 and far from it: the truncated mean of the nearest distances, searched
+        // within the truncation only, is that of unbounded searches, with points on both
+        // sides of it.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let target: Vec<[f32; 3]> = crate::sim::shapes::blob(3000, &mut rng)
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        let tree = crate::geometry::tree::build_tree(&target);
+        let moved: Vec<[f32; 3]> = (0..2000)
+            .map(|i| {
+                let p = target[(i * 7) % target.len()];
+                let out = 1.0 + rng.random::<f32>().powi(2);
+                [p[0] * out, p[1] * out, p[2] * out + 1e-3 * (i % 5) as f32]
+            })
+            .collect();
+        for (factor, tau) in [(1.0, 0.05), (1.0, 0.2), (2.3, 0.05), (0.37, 0.1)] {
+            let tau2: f64 = tau * tau;
+            let unbounded: Vec<f64> = moved
+                .iter()
+                .map(|x| {
+                    (tree.nearest_one::<SquaredEuclidean>(x).distance as f64 * factor).min(tau2)
+                })
+                .collect();
+            let beyond = unbounded.iter().filter(|&&d| d == tau2).count();
+            assert!(beyond > 100 && beyond < 1900, "{beyond} of 2000 truncated");
+            let expected = unbounded.iter().sum::<f64>() / moved.len() as f64;
+            let got = moved_score(&tree, &moved, factor, tau2);
+            assert_eq!(
+                got.to_bits(),
+                expected.to_bits(),
+                "factor {factor}, τ {tau}"
+            );
+        }
+    }
 
     #[test]
     fn cube_group_has_24_distinct_proper_rotations() {
