@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 use kiddo::SquaredEuclidean;
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 
-use crate::geometry::tree::Tree;
+use crate::geometry::tree::{Tree, SEARCH_BOUND_MARGIN};
 
 /// What a source point's last local plane was made of, so that the next iterations, which move
 /// the point by ever smaller steps, need neither the k-d tree nor the plane fit while its
@@ -40,10 +40,6 @@ type Plane = (Vector3<f64>, Vector3<f64>);
 /// far above f32's relative precision at unit scale.
 const ORDER_MARGIN: f64 = 1e-5;
 
-/// Relative margin on the squared bound of [`PlaneCache`]'s bounded search: far above the
-/// rounding of the k-d tree's f32 distances (a wider bound only costs time).
-const BOUND_MARGIN: f64 = 1e-3;
-
 impl PlaneCache {
     /// Whether the last plane certainly holds for `x`: `Some(true)` the same nearest points,
     /// the nearest within `max_d`; `Some(false)` the nearest certainly beyond `max_d` (the last
@@ -52,12 +48,12 @@ impl PlaneCache {
     /// bun180→bun090, half of it unseen in the other scan, 72 % of the searches were for such
     /// points); `None` when only a query can tell.
     fn holds(&self, x: &Vector3<f64>, max_d: f64) -> Option<bool> {
+        if self.beyond(&Point3::from(*x), max_d * max_d) {
+            return Some(false);
+        }
         let base = self.base?;
         let delta = (x - base).norm();
         let nearest = self.radii[0];
-        if nearest - delta - ORDER_MARGIN * (1.0 + nearest) > max_d {
-            return Some(false);
-        }
         let margin = |r: f64| 2.0 * delta + ORDER_MARGIN * (1.0 + r);
         let ordered = self.radii.windows(2).all(|w| w[1] - w[0] > margin(w[1]));
         if ordered && nearest + delta + ORDER_MARGIN * (1.0 + nearest) < max_d {
@@ -102,7 +98,7 @@ impl PlaneCache {
     fn bound2(&self, x: &Point3<f64>, n: usize) -> Option<f32> {
         let (base, far) = (self.base?, *self.radii.get(n - 1)?);
         let bound = far + (x.coords - base).norm();
-        Some((bound * bound * (1.0 + BOUND_MARGIN) + f64::MIN_POSITIVE) as f32)
+        Some((bound * bound * (1.0 + SEARCH_BOUND_MARGIN) + f64::MIN_POSITIVE) as f32)
     }
 
     /// The nearest target point of `x` when it lies within `√max_d2`, else `None` — without a
@@ -144,9 +140,10 @@ impl PlaneCache {
         nn
     }
 
-    /// Whether, by the last [`Self::nearest_one`], the nearest target point of `x` certainly
-    /// lies farther than `√max_d2` (the last nearest distance less the move, with the f32
-    /// margin): a point outside the gate need not be searched again while it stays there.
+    /// Whether, by the last query ([`Self::nearest_one`] or [`Self::refresh`]), the nearest
+    /// target point of `x` certainly lies farther than `√max_d2` (the last nearest distance
+    /// less the move, with the f32 margin): a point outside the gate need not be searched again
+    /// while it stays there.
     fn beyond(&self, x: &Point3<f64>, max_d2: f64) -> bool {
         match (self.base, self.radii.first()) {
             (Some(base), Some(&near)) => {
@@ -391,6 +388,24 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
 
+    /// A plane from the cache (`kept`) is a fresh query's (`fresh`) to the bit: the same
+    /// signed distance and normal, or no plane for either.
+    fn assert_same_plane(
+        fresh: Option<(f64, Vector3<f64>)>,
+        kept: Option<(f64, Vector3<f64>)>,
+        i: usize,
+        step: impl std::fmt::Display,
+    ) {
+        match (fresh, kept) {
+            (None, None) => {}
+            (Some((r, n)), Some((r2, n2))) => {
+                assert_eq!(r.to_bits(), r2.to_bits(), "point {i} step {step}");
+                assert_eq!(n, n2, "point {i} step {step}");
+            }
+            other => panic!("point {i} step {step}: {other:?}"),
+        }
+    }
+
     #[test]
     fn a_kept_plane_is_bit_identical_to_a_fresh_query_and_fit() {
         // Source points walked towards the target by ever smaller steps, as the polish moves
@@ -417,14 +432,7 @@ mod tests {
                 let kept = local_plane(&target, &tree, &x, k, max_d2, &mut cache);
                 total += 1;
                 skipped += usize::from(was.is_some());
-                match (fresh, kept) {
-                    (None, None) => {}
-                    (Some((r, n)), Some((r2, n2))) => {
-                        assert_eq!(r.to_bits(), r2.to_bits(), "point {i} step {step}");
-                        assert_eq!(n, n2, "point {i} step {step}");
-                    }
-                    other => panic!("point {i} step {step}: {other:?}"),
-                }
+                assert_same_plane(fresh, kept, i, step);
             }
         }
         assert!(skipped * 3 > total, "{skipped} of {total} queries skipped");
@@ -560,14 +568,7 @@ mod tests {
                     refused += 1;
                     assert!(fresh.is_none(), "point {i} step {step}");
                 }
-                match (fresh, kept) {
-                    (None, None) => {}
-                    (Some((r, n)), Some((r2, n2))) => {
-                        assert_eq!(r.to_bits(), r2.to_bits(), "point {i} step {step}");
-                        assert_eq!(n, n2, "point {i} step {step}");
-                    }
-                    other => panic!("point {i} step {step}: {other:?}"),
-                }
+                assert_same_plane(fresh, kept, i, step);
             }
         }
         assert!(beyond * 2 > total, "{beyond} of {total} beyond the gate");

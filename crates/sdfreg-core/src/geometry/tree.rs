@@ -9,6 +9,11 @@ use kiddo::SquaredEuclidean;
 /// k-d tree over f32 points in the unit frame.
 pub type Tree = ImmutableKdTree<f32, u32, 3, 32>;
 
+/// Relative margin on a squared bound that a [`Tree`] is searched within (a bounded search's
+/// radius): far above the rounding of the tree's f32 distances, so that a point not found
+/// within the bound certainly lies beyond it (a wider bound only costs time).
+pub(crate) const SEARCH_BOUND_MARGIN: f64 = 1e-3;
+
 /// Builds a [`Tree`] over `points`.
 pub fn build_tree(points: &[[f32; 3]]) -> Tree {
     ImmutableKdTree::new_from_slice(points)

@@ -30,7 +30,7 @@ use crate::base::error::Error;
 use crate::field::Field;
 use crate::geometry::cloud::{subsample, transformed_f32};
 use crate::geometry::planes::pca_normal;
-use crate::geometry::tree::Tree;
+use crate::geometry::tree::{Tree, SEARCH_BOUND_MARGIN};
 use crate::pipeline::surface::Surface;
 use crate::solve::kernel::Kernel;
 use crate::solve::lm::{Lm, LmSettings};
@@ -237,7 +237,7 @@ pub(crate) fn solver_score(tree: &Tree, points: &[Point3<f64>], lm: &Lm, tau2: f
 /// distances): a point with no target point there scores `tau2` whatever its nearest, and a
 /// wrong start's points far from the target no longer search the whole tree.
 fn moved_score(tree: &Tree, moved: &[[f32; 3]], factor: f64, tau2: f64) -> f64 {
-    let bound2 = (tau2 / factor * (1.0 + TRUNCATION_MARGIN)) as f32;
+    let bound2 = (tau2 / factor * (1.0 + SEARCH_BOUND_MARGIN)) as f32;
     let sum: f64 = moved
         .iter()
         .map(|x| {
@@ -248,11 +248,6 @@ fn moved_score(tree: &Tree, moved: &[[f32; 3]], factor: f64, tau2: f64) -> f64 {
         .sum();
     sum / moved.len().max(1) as f64
 }
-
-/// Relative margin on the squared truncation that [`moved_score`] searches within: far above
-/// the rounding of the k-d tree's f32 distances, so that a point beyond it is certainly beyond
-/// the truncation.
-const TRUNCATION_MARGIN: f64 = 1e-3;
 
 /// Index of the candidate with the least rotation among those whose score is within
 /// `(1 + tie)` of the best (the least-motion prior for symmetric shapes).
