@@ -88,7 +88,7 @@ fn the_scans_order_does_not_change_the_poses() {
     // Of each pair the scan with more points is the target, so four scans given in another
     // order are registered in the same pairs, the same way round: the same poses, but for the
     // order the graph's sums are taken in. The simulated scans have as many points each (then
-    // the earlier is the target): each keeps all but 100·k of them here. (With the earlier scan
+    // the indices break the tie): each keeps all but 100·k of them here. (With the earlier scan
     // the target whatever the counts, scan 3 moved 0.008° / 1.1 mm.)
     let (scans, _) = room_loop(4, &sensor());
     let scans: Vec<Vec<Point3<f64>>> = scans
