@@ -5,6 +5,7 @@
     .venv-compare/bin/python benches/lidar_compare.py --pairs target/lidar-pairs
     .venv-compare/bin/python benches/lidar_compare.py --real ../shared/data/lidar  # real scans
     .venv-compare/bin/python benches/lidar_compare.py --real ../shared/data/lidar --far-starts
+    .venv-compare/bin/python benches/lidar_compare.py --real ../shared/data/lidar --far-starts --reverse
 
 Each pair (`DIR/{street,room}/{source,target}.ply`, `gt.txt` mapping source into target) is
 registered from several starts: the identity (the scans' own offset: 1.2 m / 3° for the street,
@@ -223,9 +224,10 @@ def plane_icp_worth(kind: str, src: np.ndarray, tgt: np.ndarray, refs: List[np.n
     return rows
 
 
-def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
+def real(root: Path, rows: List[dict], quick: bool, far_starts: bool, reverse: bool = False) -> None:
     """The real scans in ROOT (`../shared/data/lidar`): the outdoor pair against its two published
-    references, and the KITTI frames (no poses) compared between methods and starts."""
+    references, and the KITTI frames (no poses) compared between methods and starts; with
+    `reverse`, each KITTI step the other way round (the later frame the target)."""
     voxel, max_corr = 0.05, 1.0
     PARAMS["real"] = (voxel, max_corr)
     peers = {k: v for k, v in methods("real").items() if k != "sdfreg"}
@@ -238,6 +240,8 @@ def real(root: Path, rows: List[dict], quick: bool, far_starts: bool) -> None:
         frames = sorted(kd.glob("*.ply"))
         steps = [(i, i + 1) for i in range(len(frames) - 1)] + ([(0, len(frames) - 1)] if len(frames) > 2 else [])
         for a, b in steps[:2] if quick else steps:
+            if reverse:
+                a, b = b, a
             pairs.append((f"kitti {a}->{b}", frames[a], frames[b], []))
     if not pairs:
         print(f"lidar_compare.py: no real scans in {root}; skipped", file=sys.stderr)
@@ -322,11 +326,13 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="with --real: the first two KITTI steps only")
     parser.add_argument("--far-starts", action="store_true", help="with --real: also from 8 starts 3 m "
                         "and 20° off each pair (four directions, both yaw signs), how many land")
+    parser.add_argument("--reverse", action="store_true", help="with --real: each KITTI step the other "
+                        "way round (the later frame onto the earlier)")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     rows: List[dict] = []
     if args.real is not None:
-        real(args.real, rows, args.quick, args.far_starts)
+        real(args.real, rows, args.quick, args.far_starts, args.reverse)
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1) + "\n")
         if "--pairs" not in sys.argv:

@@ -345,8 +345,9 @@ settings_class! {
     ///     distinct_translation: …and this count as one.
     ///     hypotheses: Hypotheses carried into the coarse-to-fine loop.
     ///     rescue: With ``init`` given and its result still leaving more than the robust mode's
-    ///         ``outside_share`` of the source outside the target's coverage, run again from the
-    ///         multi-start and return that when it leaves less outside.
+    ///         ``outside_share`` of the source outside the target's coverage, or lying a distinct
+    ///         pose from ``init`` (``distinct_rotation_deg``, ``distinct_translation``), run again
+    ///         from the multi-start and return that when it leaves less outside.
     ///     grid_cells: While Φ is being fitted (a full call against an object), the starts'
     ///         first round reads Φ baked into a grid of this many cells a side; 0: Φ itself.
     ///     scene_turn_deg: When Φ is local (a scene), the starts also turn the source about

@@ -242,7 +242,12 @@ fn register_drawn<S: Surface>(
     };
     let mut r = from(init);
     if let Some(share) = rescue_share(init, s) {
-        r = rescue(r, share, outside, || from(None));
+        let far = init.is_some_and(|guess| {
+            let to_unit = |t: &Isometry3<f64>| unit.norm.pose_to_unit(t);
+            s.multistart
+                .distinct(&to_unit(guess), &to_unit(&r.t_target_source))
+        });
+        r = rescue(r, share, far, outside, || from(None));
     }
     r.time = start.elapsed();
     Ok(r)
@@ -262,7 +267,7 @@ fn rescue_share(init: Option<&Isometry3<f64>>, s: &RegisterSettings) -> Option<f
 }
 
 /// A given guess's result `given` when it leaves at most `share` of the source outside the
-/// target's coverage (`outside`); else the result from the multi-start (`from_scratch`) when
+/// target's coverage (`outside`) and does not lie `far` from the guess; else the result from the multi-start (`from_scratch`) when
 /// that leaves less outside without fitting correspondingly less ([`rescued`]), with
 /// [`Stages::rescue`](crate::Stages) saying which, and the time of the run not returned in
 /// `other_run`. The fitness matters where the overlap is partial: a wrong pose can leave a
@@ -272,6 +277,7 @@ fn rescue_share(init: Option<&Isometry3<f64>>, s: &RegisterSettings) -> Option<f
 fn rescue(
     given: Registration,
     share: f64,
+    far: bool,
     outside: impl Fn(&Registration) -> f64,
     from_scratch: impl FnOnce() -> Registration,
 ) -> Registration {
@@ -280,7 +286,8 @@ fn rescue(
         .robust
         .returned_outside()
         .unwrap_or_else(|| outside(&given));
-    if given_outside <= share {
+    let far_from_guess = far && given_outside <= share;
+    if given_outside <= share && !far {
         return given;
     }
     let scratch = from_scratch();
@@ -295,6 +302,7 @@ fn rescue(
             rescue_outside,
             given_fitness,
             rescue_fitness,
+            far_from_guess,
         };
         (scratch, given, report)
     } else {
@@ -303,6 +311,7 @@ fn rescue(
             rescue_outside,
             given_fitness,
             rescue_fitness,
+            far_from_guess,
         };
         (given, scratch, report)
     };

@@ -185,12 +185,13 @@ impl RobustReport {
 
 /// Whether a given initial guess was rescued by the multi-start
 /// ([`crate::MultistartSettings::rescue`]): its result left too much of the source outside the
-/// target's coverage, and the registration ran again as if no guess had been given.
+/// target's coverage, or lay far from the guess, and the registration ran again as if no guess
+/// had been given.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case", tag = "kind")]
 #[non_exhaustive]
 pub enum RescueReport {
-    /// Not tried: no guess given, or its result within the coverage.
+    /// Not tried: no guess given, or its result within the coverage and near the guess.
     #[default]
     NotTried,
     /// The run from the multi-start left less of the source outside, without fitting
@@ -208,6 +209,12 @@ pub enum RescueReport {
         /// The multi-start's result's fitness.
         #[serde(default)]
         rescue_fitness: f64,
+        /// Whether it was tried because the guess's result lay far from the guess (a distinct
+        /// pose by [`crate::MultistartSettings::distinct_rotation_deg`] or
+        /// [`crate::MultistartSettings::distinct_translation`]) while its outside share was
+        /// within the bound (false in reports written before this was recorded).
+        #[serde(default)]
+        far_from_guess: bool,
     },
     /// The run from the multi-start did not leave less outside, or its fitness fell by more
     /// than its outside share; the guess's result was returned.
@@ -223,6 +230,12 @@ pub enum RescueReport {
         /// The multi-start's result's fitness.
         #[serde(default)]
         rescue_fitness: f64,
+        /// Whether it was tried because the guess's result lay far from the guess (a distinct
+        /// pose by [`crate::MultistartSettings::distinct_rotation_deg`] or
+        /// [`crate::MultistartSettings::distinct_translation`]) while its outside share was
+        /// within the bound (false in reports written before this was recorded).
+        #[serde(default)]
+        far_from_guess: bool,
     },
 }
 
