@@ -9,6 +9,8 @@
 //!    [`RegisterSettings::max_target_points`] ([`crate::geometry::cloud`]);
 //! 2. **pre-fit Φ** on the target ([`crate::FitSettings::prefit_steps`] Adam steps, eq. 18–20);
 //! 3. **initial hypotheses** — the caller's guess, or the multi-start ([`crate::pipeline::multistart`]);
+//!    a guess whose result leaves too much of the source outside the target's coverage, or lies
+//!    far from the guess, is run again from the multi-start ([`crate::MultistartSettings::rescue`]);
 //! 4. **coarse-to-fine** (eq. 18-1) — alternate Φ refinement with the moved source among its
 //!    queries and LM steps (eq. 9–13) per hypothesis; keep the best ([`crate::pipeline::coarse_to_fine`]);
 //! 5. **final LM** on the frozen Φ until converged;
@@ -267,8 +269,9 @@ fn rescue_share(init: Option<&Isometry3<f64>>, s: &RegisterSettings) -> Option<f
 }
 
 /// A given guess's result `given` when it leaves at most `share` of the source outside the
-/// target's coverage (`outside`) and does not lie `far` from the guess; else the result from the multi-start (`from_scratch`) when
-/// that leaves less outside without fitting correspondingly less ([`rescued`]), with
+/// target's coverage (`outside`) and does not lie `far` from the guess; else the result from
+/// the multi-start (`from_scratch`) when that leaves less outside without fitting
+/// correspondingly less ([`rescued`]), with
 /// [`Stages::rescue`](crate::Stages) saying which, and the time of the run not returned in
 /// `other_run`. The fitness matters where the overlap is partial: a wrong pose can leave a
 /// little less outside and fit far less (3DMatch's 06→00 from the published pose, `--model
