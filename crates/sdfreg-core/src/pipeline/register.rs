@@ -9,8 +9,9 @@
 //!    [`RegisterSettings::max_target_points`] ([`crate::geometry::cloud`]);
 //! 2. **pre-fit Φ** on the target ([`crate::FitSettings::prefit_steps`] Adam steps, eq. 18–20);
 //! 3. **initial hypotheses** — the caller's guess, or the multi-start ([`crate::pipeline::multistart`]);
-//!    a guess whose result leaves too much of the source outside the target's coverage, or lies
-//!    far from the guess, is run again from the multi-start ([`crate::MultistartSettings::rescue`]);
+//!    a guess whose result leaves too much of the source outside the target's coverage, or
+//!    lies far from the guess, is run again from the multi-start
+//!    ([`crate::MultistartSettings::rescue`]);
 //! 4. **coarse-to-fine** (eq. 18-1) — alternate Φ refinement with the moved source among its
 //!    queries and LM steps (eq. 9–13) per hypothesis; keep the best ([`crate::pipeline::coarse_to_fine`]);
 //! 5. **final LM** on the frozen Φ until converged;
@@ -289,10 +290,12 @@ fn rescue(
         .robust
         .returned_outside()
         .unwrap_or_else(|| outside(&given));
-    let far_from_guess = far && given_outside <= share;
-    if given_outside <= share && !far {
+    let within = given_outside <= share;
+    if within && !far {
         return given;
     }
+    // Run for lying far from the guess alone: its outside share was within the bound.
+    let far_from_guess = within;
     let scratch = from_scratch();
     let rescue_outside = outside(&scratch);
     let (given_fitness, rescue_fitness) = (given.fitness, scratch.fitness);

@@ -408,8 +408,8 @@ fn check_input(
 /// mean error over 12 noise draws rose from 0.0149° at view 2 to 0.0228° at view 4 and 0.0222°
 /// at view 7, 0.0187° over views 1–7, against 0.0135–0.0200° and 0.0172° now. A hash of the
 /// points as the tie-break made the procedural room loop's scan 0 the source onto the models
-/// of scans 3, 4 and 5, where the scene's shift search takes a candidate 0.1 m up — rings on the walls
-/// laid onto rings — and the loop ended 77 mm off.)
+/// of scans 3, 4 and 5, where the scene's shift search takes a candidate 0.1 m up — rings on
+/// the walls laid onto rings — and the loop ended 77 mm off.)
 fn pair_list(scans: &[Vec<Point3<f64>>], s: &AlignSettings) -> Vec<(usize, usize)> {
     let n = scans.len();
     let mut pairs: Vec<(usize, usize)> = if n <= s.all_pairs_up_to {
