@@ -2,7 +2,7 @@
 //! sensor poses in a loop, aligned into the first scan's frame from no guesses; prints each
 //! pose's error against the simulator's truth, the loop's closure (the last pose's error
 //! against the first non-anchor's), the kept edges' mean rotation error in their targets'
-//! frames, what chaining the consecutive pairs would give, the time per stage and the edges
+//! frames, their errors by how far apart along the loop their views are, what chaining the consecutive pairs would give, the time per stage and the edges
 //! kept; with `--draws N`, each view's mean over N draws of the range noise.
 //!
 //!     cargo bench --bench views                 # 8 views, 64 beams
@@ -157,6 +157,7 @@ fn one_draw(views: usize, sensor: &Sensor, draw: u64, settings: &AlignSettings) 
         errors.last().map_or(0.0, |e| e.1 * 1e3)
     );
     let pitch = edge_bias(&a, &truth);
+    edges_by_gap(&a, &truth);
     let chained = chained(&a, &truth);
     let checked: Vec<String> = a
         .edges
@@ -275,6 +276,36 @@ fn edge_bias(
         mean.x, mean.y, mean.z, se.x, se.y, se.z, errors.len()
     );
     Some(mean)
+}
+
+/// The kept edges' errors against the truth by how far apart along the loop their two views
+/// are (1: neighbours; the loop closures of a long loop lie farther apart): count, mean
+/// rotation and translation error.
+fn edges_by_gap(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
+    let n = truth.len();
+    let mut by_gap: std::collections::BTreeMap<usize, Vec<(f64, f64)>> = Default::default();
+    for e in a.edges.iter().filter(|e| e.kept) {
+        let Ok(r) = &e.registration else { continue };
+        let exact = truth[e.target].inverse() * truth[e.source];
+        let d = e.target.abs_diff(e.source);
+        by_gap
+            .entry(d.min(n - d))
+            .or_default()
+            .push(pose_errors(&r.t_target_source, &exact));
+    }
+    let row: Vec<String> = by_gap
+        .iter()
+        .map(|(gap, errors)| {
+            let m = errors.len() as f64;
+            let rot = errors.iter().map(|e| e.0).sum::<f64>() / m;
+            let trans = errors.iter().map(|e| e.1).sum::<f64>() / m;
+            format!("{gap}: {} at {rot:.4}°/{:.2}", errors.len(), trans * 1e3)
+        })
+        .collect();
+    println!(
+        "kept edges by views apart along the loop (mm): {}",
+        row.join(", ")
+    );
 }
 
 /// What chaining the pairs by hand would give: each view's pose composed from the consecutive

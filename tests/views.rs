@@ -84,6 +84,47 @@ fn the_anchor_and_the_initial_poses_are_honoured() {
 }
 
 #[test]
+fn a_long_loop_gets_closure_pairs_once_the_graph_has_placed_its_scans() {
+    // Twelve views, each paired with the next alone (a ring of 12 pairs, 6 edges across at
+    // most): the scans overlap all round the room, so once the graph has placed them, pairs at
+    // least `closure_min_hops` kept edges apart are registered from the graph's poses too, at
+    // most two for each scan, and kept.
+    let (scans, truth) = room_loop(12, &sensor());
+    let s = AlignSettings {
+        all_pairs_up_to: 4,
+        neighbours: 1,
+        ..Default::default()
+    };
+    let a = align(&scans, None, &s).unwrap();
+    let n = scans.len();
+    let ring = |e: &sdfreg_core::Edge| {
+        let d = e.target.abs_diff(e.source);
+        d.min(n - d)
+    };
+    let closures: Vec<&sdfreg_core::Edge> = a.edges.iter().filter(|e| ring(e) > 1).collect();
+    assert_eq!(a.edges.len(), n + closures.len());
+    assert!(closures.len() >= 2, "{} closure pairs", closures.len());
+    for e in &closures {
+        assert!(ring(e) >= s.closure_min_hops, "{}→{}", e.source, e.target);
+        assert!(e.kept, "{}→{} not kept", e.source, e.target);
+    }
+    for k in 0..n {
+        let count = closures
+            .iter()
+            .filter(|e| e.source == k || e.target == k)
+            .count();
+        assert!(
+            count <= s.closure_pairs,
+            "scan {k} in {count} closure pairs"
+        );
+    }
+    for (k, (pose, t)) in a.poses.iter().zip(&truth).enumerate() {
+        let (rot, trans) = pose_errors(&pose.expect("placed"), t);
+        assert!(rot < 0.3 && trans < 0.015, "view {k}: {rot}° {trans} m");
+    }
+}
+
+#[test]
 fn the_scans_order_does_not_change_the_poses() {
     // Of each pair the scan with more points is the target, so four scans given in another
     // order are registered in the same pairs, the same way round: the same poses, but for the

@@ -37,6 +37,7 @@ pub fn run(a: AlignArgs) -> Result<()> {
     let mut settings = AlignSettings {
         register: a.common.settings_from("views")?,
         anchor: a.anchor,
+        closure_pairs: a.closure_pairs,
         joint_rounds: a.joint_rounds,
         consensus: sdfreg_core::ConsensusSettings {
             iterations: a.consensus_iterations,

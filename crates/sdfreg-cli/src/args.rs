@@ -410,6 +410,11 @@ pub struct AlignArgs {
     /// order; a turntable's angles, odometry) [default: none, every pair from nothing].
     #[arg(long)]
     pub init: Option<PathBuf>,
+    /// Above 16 scans (each paired with its next 3), the pairs each scan joins once the pose
+    /// graph has placed them: between scans that overlap and lie at least 5 kept edges apart
+    /// (loop closures); 0 skips them.
+    #[arg(long, default_value_t = 2)]
+    pub closure_pairs: usize,
     /// Joint refinement rounds: each scan registered against one model of all the others (it
     /// did not help on the measured sets; see the guide's Many views page).
     #[arg(long, default_value_t = 0)]

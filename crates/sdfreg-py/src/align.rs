@@ -16,8 +16,10 @@ use crate::settings::{Caller, SettingsArgs};
 /// Aligns many scans (views of one object or scene) into the frame of one of them.
 ///
 /// Each scan gets a stored model; the pairs are registered through them (all pairs up to 16
-/// scans, else each scan with its next 3 in order, wrapping round); the registrations that fit
-/// (fitness ≥ 0.3), that a cycle through a third scan confirms and that agree with the spanning
+/// scans, else each scan with its next 3 in order, wrapping round, then at most
+/// ``closure_pairs`` more per scan between placed scans that overlap far apart along the
+/// graph); the registrations that fit (fitness ≥ 0.3), that a cycle through a third scan
+/// confirms and that agree with the spanning
 /// tree of the best ones form a pose graph, solved by robust Gauss–Newton on SE(3); then each
 /// scan is registered against one model of all the others
 /// (``joint_rounds`` times, none by default). No initial guesses are needed.
@@ -27,6 +29,9 @@ use crate::settings::{Caller, SettingsArgs};
 ///     init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
 ///         angles, odometry), or None.
 ///     anchor: The scan whose frame the poses map into.
+///     closure_pairs: Above 16 scans, the pairs each scan joins once the graph has placed
+///         them, between scans that overlap and lie at least 5 kept edges apart (loop
+///         closures); 0 skips. Default 2.
 ///     joint_rounds: Joint refinement rounds (each scan against one model of the others);
 ///         0 skips.
 ///     consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
@@ -53,13 +58,14 @@ use crate::settings::{Caller, SettingsArgs};
 ///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
 ///         of range.
 #[pyfunction]
-#[pyo3(signature = (scans, *, init = None, anchor = 0, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.02, **settings))]
+#[pyo3(signature = (scans, *, init = None, anchor = 0, closure_pairs = 2, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.02, **settings))]
 #[allow(clippy::too_many_arguments)]
 pub fn align<'py>(
     py: Python<'py>,
     scans: &Bound<'py, PyAny>,
     init: Option<&Bound<'py, PyAny>>,
     anchor: i64,
+    closure_pairs: i64,
     joint_rounds: i64,
     consensus_iterations: i64,
     seen_from: Option<&Bound<'py, PyAny>>,
@@ -89,6 +95,9 @@ pub fn align<'py>(
         register,
         anchor: usize::try_from(anchor)
             .map_err(|_| error::argument("anchor", format!("must be ≥ 0, got {anchor}")))?,
+        closure_pairs: usize::try_from(closure_pairs).map_err(|_| {
+            error::argument("closure_pairs", format!("must be ≥ 0, got {closure_pairs}"))
+        })?,
         joint_rounds: usize::try_from(joint_rounds).map_err(|_| {
             error::argument("joint_rounds", format!("must be ≥ 0, got {joint_rounds}"))
         })?,

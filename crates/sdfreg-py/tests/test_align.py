@@ -73,6 +73,8 @@ def test_the_anchor_and_bad_input() -> None:
         assert rot < 1.0 and trans < 0.01, (k, rot, trans)
     with pytest.raises(ValueError, match="consensus_iterations"):
         sdfreg.align(scans, consensus_iterations=-1)
+    with pytest.raises(ValueError, match="closure_pairs"):
+        sdfreg.align(scans, closure_pairs=-1)
     with pytest.raises(ValueError, match="at least two scans"):
         sdfreg.align(scans[:1])
     with pytest.raises(ValueError, match="align.anchor"):

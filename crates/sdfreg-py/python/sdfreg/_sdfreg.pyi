@@ -702,6 +702,7 @@ def align(
     *,
     init: Optional[Iterable[npt.ArrayLike]] = None,
     anchor: int = 0,
+    closure_pairs: int = 2,
     joint_rounds: int = 0,
     consensus_iterations: int = 0,
     seen_from: Union[str, Sequence[float], None] = None,
@@ -711,8 +712,10 @@ def align(
     """Aligns many scans (views of one object or scene) into the frame of one of them.
 
     Each scan gets a stored model; the pairs are registered through them (all pairs up to 16
-    scans, else each scan with its next 3 in order, wrapping round); the registrations that fit
-    (fitness ≥ 0.3), that a cycle through a third scan confirms and that agree with the spanning
+    scans, else each scan with its next 3 in order, wrapping round, then at most
+    ``closure_pairs`` more per scan between placed scans that overlap far apart along the
+    graph); the registrations that fit (fitness ≥ 0.3), that a cycle through a third scan
+    confirms and that agree with the spanning
     tree of the best ones form a pose graph, solved by robust Gauss–Newton on SE(3); then each
     scan is registered against one model of all the others
     (``joint_rounds`` times, none by default). No initial guesses are needed.
@@ -722,6 +725,9 @@ def align(
         init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
             angles, odometry), or None.
         anchor: The scan whose frame the poses map into.
+        closure_pairs: Above 16 scans, the pairs each scan joins once the graph has placed
+            them, between scans that overlap and lie at least 5 kept edges apart (loop
+            closures); 0 skips. Default 2.
         joint_rounds: Joint refinement rounds (each scan against one model of the others);
             0 skips.
         consensus_iterations: Iterations of the multi-view point-to-plane refinement after the
