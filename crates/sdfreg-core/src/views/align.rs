@@ -676,28 +676,48 @@ fn closure_pair_list(
     if cells.len() != n {
         return Vec::new();
     }
-    let registered = |i: usize, j: usize| {
-        edges
-            .iter()
-            .any(|e| (e.target, e.source) == (i, j) || (e.target, e.source) == (j, i))
-    };
-    let mut candidates: Vec<(usize, usize, f64)> = Vec::new();
-    for i in 0..n {
-        for j in i + 1..n {
-            let (Some(a), Some(b)) = (&cells[i], &cells[j]) else {
-                continue;
-            };
-            if registered(i, j) || a.is_empty() || b.is_empty() {
-                continue;
-            }
-            let (small, large) = if a.len() <= b.len() { (a, b) } else { (b, a) };
-            let overlap =
-                small.iter().filter(|c| large.contains(*c)).count() as f64 / small.len() as f64;
-            if overlap >= s.closure_min_overlap {
-                candidates.push((i, j, overlap));
-            }
+    let registered: std::collections::HashSet<(usize, usize)> = edges
+        .iter()
+        .flat_map(|e| [(e.target, e.source), (e.source, e.target)])
+        .collect();
+    // Each scan's cells' bounding box: two scans whose boxes are apart share no cell.
+    let boxes: Vec<Option<([i64; 3], [i64; 3])>> = cells
+        .iter()
+        .map(|c| {
+            let c = c.as_ref()?;
+            let first = *c.iter().next()?;
+            Some(c.iter().fold((first, first), |(lo, hi), x| {
+                (
+                    std::array::from_fn(|k| lo[k].min(x[k])),
+                    std::array::from_fn(|k| hi[k].max(x[k])),
+                )
+            }))
+        })
+        .collect();
+    let apart = |i: usize, j: usize| match (boxes[i], boxes[j]) {
+        (Some((lo_i, hi_i)), Some((lo_j, hi_j))) => {
+            (0..3).any(|k| hi_i[k] < lo_j[k] || hi_j[k] < lo_i[k])
         }
-    }
+        _ => true,
+    };
+    let overlap = |i: usize, j: usize| -> Option<f64> {
+        if registered.contains(&(i, j)) || apart(i, j) {
+            return None;
+        }
+        let (a, b) = (cells[i].as_ref()?, cells[j].as_ref()?);
+        let (small, large) = if a.len() <= b.len() { (a, b) } else { (b, a) };
+        let shared = small.iter().filter(|c| large.contains(*c)).count();
+        Some(shared as f64 / small.len() as f64)
+    };
+    let candidates: Vec<(usize, usize, f64)> = in_pool(s.threads, || {
+        (0..n)
+            .into_par_iter()
+            .flat_map_iter(|i| (i + 1..n).map(move |j| (i, j)))
+            .filter_map(|(i, j)| Some((i, j, overlap(i, j)?)))
+            .filter(|&(_, _, o)| o >= s.closure_min_overlap)
+            .collect()
+    })
+    .unwrap_or_default();
     // Hops along the kept edges between every two scans.
     let kept: Vec<(usize, usize)> = edges
         .iter()
