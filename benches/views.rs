@@ -2,8 +2,9 @@
 //! sensor poses in a loop, aligned into the first scan's frame from no guesses; prints each
 //! pose's error against the simulator's truth, the loop's closure (the last pose's error
 //! against the first non-anchor's), the kept edges' mean rotation error in their targets'
-//! frames, their errors by how far apart along the loop their views are, what chaining the consecutive pairs would give, the time per stage and the edges
-//! kept; with `--draws N`, each view's mean over N draws of the range noise.
+//! frames, their errors by how far apart along the loop their views are, what chaining the
+//! consecutive pairs would give, the time per stage and the edges kept; with `--draws N`, each
+//! view's mean over N draws of the range noise.
 //!
 //!     cargo bench --bench views                 # 8 views, 64 beams
 //!     cargo bench --bench views -- --views 100  # peak memory: run under /usr/bin/time -v
@@ -239,6 +240,19 @@ fn summary(runs: &[Run]) {
     }
 }
 
+/// The kept edges that registered: each with its measured pose (source into target) and the
+/// true one.
+fn kept_edges<'a>(
+    a: &'a sdfreg_core::Alignment,
+    truth: &'a [Isometry3<f64>],
+) -> impl Iterator<Item = (&'a sdfreg_core::Edge, Isometry3<f64>, Isometry3<f64>)> + 'a {
+    a.edges.iter().filter(|e| e.kept).filter_map(|e| {
+        let r = e.registration.as_ref().ok()?;
+        let exact = truth[e.target].inverse() * truth[e.source];
+        Some((e, r.t_target_source, exact))
+    })
+}
+
 /// The kept edges' rotation errors, each in its target scan's frame (rotation vector of
 /// `measured · truth⁻¹`, degrees): their mean, and its standard error. A mean well away from
 /// zero is a bias of registering onto a scan (the one-sided objective); the room's scans have
@@ -248,15 +262,10 @@ fn edge_bias(
     a: &sdfreg_core::Alignment,
     truth: &[Isometry3<f64>],
 ) -> Option<nalgebra::Vector3<f64>> {
-    let errors: Vec<nalgebra::Vector3<f64>> = a
-        .edges
-        .iter()
-        .filter(|e| e.kept)
-        .filter_map(|e| {
-            let r = e.registration.as_ref().ok()?;
-            let exact = truth[e.target].inverse() * truth[e.source];
-            let d = r.t_target_source * exact.inverse();
-            Some(d.rotation.scaled_axis().map(f64::to_degrees))
+    let errors: Vec<nalgebra::Vector3<f64>> = kept_edges(a, truth)
+        .map(|(_, measured, exact)| {
+            let d = measured * exact.inverse();
+            d.rotation.scaled_axis().map(f64::to_degrees)
         })
         .collect();
     if errors.len() < 2 {
@@ -284,14 +293,12 @@ fn edge_bias(
 fn edges_by_gap(a: &sdfreg_core::Alignment, truth: &[Isometry3<f64>]) {
     let n = truth.len();
     let mut by_gap: std::collections::BTreeMap<usize, Vec<(f64, f64)>> = Default::default();
-    for e in a.edges.iter().filter(|e| e.kept) {
-        let Ok(r) = &e.registration else { continue };
-        let exact = truth[e.target].inverse() * truth[e.source];
+    for (e, measured, exact) in kept_edges(a, truth) {
         let d = e.target.abs_diff(e.source);
         by_gap
             .entry(d.min(n - d))
             .or_default()
-            .push(pose_errors(&r.t_target_source, &exact));
+            .push(pose_errors(&measured, &exact));
     }
     let row: Vec<String> = by_gap
         .iter()

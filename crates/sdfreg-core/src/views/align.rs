@@ -380,7 +380,7 @@ pub fn align(
         poses = more_pairs(&reversed, init, &mut edges, &mut left_out, &mut times)?;
     }
     clock = Instant::now();
-    let closures = closure_pair_list(scans, &edges, &poses, s);
+    let closures = closure_pair_list(scans, &edges, &poses, s)?;
     lap(&mut clock, &mut times.graph);
     if !closures.is_empty() {
         let at: Vec<Isometry3<f64>> = poses
@@ -646,78 +646,12 @@ fn closure_pair_list(
     edges: &[Edge],
     poses: &[Option<Isometry3<f64>>],
     s: &AlignSettings,
-) -> Vec<(usize, usize)> {
+) -> Result<Vec<(usize, usize)>, Error> {
     let n = scans.len();
     if s.closure_pairs == 0 || n <= s.all_pairs_up_to {
-        return Vec::new();
+        return Ok(Vec::new());
     }
-    let cell = s.closure_cell * median_extent(scans);
-    // Each placed scan's occupied cells in the common frame, from at most 8192 of its points.
-    let cells: Vec<Option<std::collections::HashSet<[i64; 3]>>> = in_pool(s.threads, || {
-        scans
-            .par_iter()
-            .zip(poses)
-            .map(|(scan, pose)| {
-                let pose = pose.as_ref()?;
-                let stride = scan.len().div_ceil(8192).max(1);
-                Some(
-                    scan.iter()
-                        .step_by(stride)
-                        .map(|p| {
-                            let q = pose * p;
-                            [q.x, q.y, q.z].map(|v| (v / cell).floor() as i64)
-                        })
-                        .collect(),
-                )
-            })
-            .collect()
-    })
-    .unwrap_or_default();
-    if cells.len() != n {
-        return Vec::new();
-    }
-    let registered: std::collections::HashSet<(usize, usize)> = edges
-        .iter()
-        .flat_map(|e| [(e.target, e.source), (e.source, e.target)])
-        .collect();
-    // Each scan's cells' bounding box: two scans whose boxes are apart share no cell.
-    let boxes: Vec<Option<([i64; 3], [i64; 3])>> = cells
-        .iter()
-        .map(|c| {
-            let c = c.as_ref()?;
-            let first = *c.iter().next()?;
-            Some(c.iter().fold((first, first), |(lo, hi), x| {
-                (
-                    std::array::from_fn(|k| lo[k].min(x[k])),
-                    std::array::from_fn(|k| hi[k].max(x[k])),
-                )
-            }))
-        })
-        .collect();
-    let apart = |i: usize, j: usize| match (boxes[i], boxes[j]) {
-        (Some((lo_i, hi_i)), Some((lo_j, hi_j))) => {
-            (0..3).any(|k| hi_i[k] < lo_j[k] || hi_j[k] < lo_i[k])
-        }
-        _ => true,
-    };
-    let overlap = |i: usize, j: usize| -> Option<f64> {
-        if registered.contains(&(i, j)) || apart(i, j) {
-            return None;
-        }
-        let (a, b) = (cells[i].as_ref()?, cells[j].as_ref()?);
-        let (small, large) = if a.len() <= b.len() { (a, b) } else { (b, a) };
-        let shared = small.iter().filter(|c| large.contains(*c)).count();
-        Some(shared as f64 / small.len() as f64)
-    };
-    let candidates: Vec<(usize, usize, f64)> = in_pool(s.threads, || {
-        (0..n)
-            .into_par_iter()
-            .flat_map_iter(|i| (i + 1..n).map(move |j| (i, j)))
-            .filter_map(|(i, j)| Some((i, j, overlap(i, j)?)))
-            .filter(|&(_, _, o)| o >= s.closure_min_overlap)
-            .collect()
-    })
-    .unwrap_or_default();
+    let candidates = in_pool(s.threads, || closure_candidates(scans, edges, poses, s))?;
     // Hops along the kept edges between every two scans.
     let kept: Vec<(usize, usize)> = edges
         .iter()
@@ -760,7 +694,77 @@ fn closure_pair_list(
             std::mem::swap(i, j);
         }
     }
-    chosen
+    Ok(chosen)
+}
+
+/// [`closure_pair_list`]'s candidates `(i, j, overlap)`, `i < j`: pairs of placed scans not
+/// registered yet whose occupied cells overlap by at least
+/// [`AlignSettings::closure_min_overlap`] of the smaller scan's (run within the pool).
+fn closure_candidates(
+    scans: &[Vec<Point3<f64>>],
+    edges: &[Edge],
+    poses: &[Option<Isometry3<f64>>],
+    s: &AlignSettings,
+) -> Vec<(usize, usize, f64)> {
+    let n = scans.len();
+    let cell = s.closure_cell * median_extent(scans);
+    // Each placed scan's occupied cells in the common frame, from at most 8192 of its points.
+    let cells: Vec<Option<std::collections::HashSet<[i64; 3]>>> = scans
+        .par_iter()
+        .zip(poses)
+        .map(|(scan, pose)| {
+            let pose = pose.as_ref()?;
+            let stride = scan.len().div_ceil(8192).max(1);
+            Some(
+                scan.iter()
+                    .step_by(stride)
+                    .map(|p| {
+                        let q = pose * p;
+                        [q.x, q.y, q.z].map(|v| (v / cell).floor() as i64)
+                    })
+                    .collect(),
+            )
+        })
+        .collect();
+    let registered: std::collections::HashSet<(usize, usize)> = edges
+        .iter()
+        .flat_map(|e| [(e.target, e.source), (e.source, e.target)])
+        .collect();
+    // Each scan's cells' bounding box: two scans whose boxes are apart share no cell.
+    let boxes: Vec<Option<([i64; 3], [i64; 3])>> = cells
+        .iter()
+        .map(|c| {
+            let c = c.as_ref()?;
+            let first = *c.iter().next()?;
+            Some(c.iter().fold((first, first), |(lo, hi), x| {
+                (
+                    std::array::from_fn(|k| lo[k].min(x[k])),
+                    std::array::from_fn(|k| hi[k].max(x[k])),
+                )
+            }))
+        })
+        .collect();
+    let apart = |i: usize, j: usize| match (boxes[i], boxes[j]) {
+        (Some((lo_i, hi_i)), Some((lo_j, hi_j))) => {
+            (0..3).any(|k| hi_i[k] < lo_j[k] || hi_j[k] < lo_i[k])
+        }
+        _ => true,
+    };
+    let overlap = |i: usize, j: usize| -> Option<f64> {
+        if registered.contains(&(i, j)) || apart(i, j) {
+            return None;
+        }
+        let (a, b) = (cells[i].as_ref()?, cells[j].as_ref()?);
+        let (small, large) = if a.len() <= b.len() { (a, b) } else { (b, a) };
+        let shared = small.iter().filter(|c| large.contains(*c)).count();
+        Some(shared as f64 / small.len() as f64)
+    };
+    (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| (i + 1..n).map(move |j| (i, j)))
+        .filter_map(|(i, j)| Some((i, j, overlap(i, j)?)))
+        .filter(|&(_, _, o)| o >= s.closure_min_overlap)
+        .collect()
 }
 
 /// The number of `edges` (pairs of scan indices) on the shortest path from scan `start` to each
@@ -961,13 +965,7 @@ fn pose_graph(
                 .iter()
                 .copied()
                 .filter(|&e| !edges[e].kept)
-                .filter(|&e| {
-                    at(edges[e].target)
-                        .zip(at(edges[e].source))
-                        .is_some_and(|(ti, tj)| {
-                            agree(&((ti.inverse() * tj) * measured(&edges[e]).inverse()))
-                        })
-                })
+                .filter(|&e| off_the_poses(&edges[e], at).is_some_and(|off| agree(&off)))
                 .collect();
             if more.is_empty() || round == RECHECKS {
                 break;
@@ -1029,6 +1027,14 @@ fn unconfirmed_scans(
 /// A candidate edge's measured pose (scan `source` into scan `target`).
 fn measured(e: &Edge) -> Isometry3<f64> {
     e.registration.as_ref().expect("candidate").t_target_source
+}
+
+/// How far edge `e`'s measured pose lies from the one its two scans' poses (`at`, `None` for
+/// a scan without one) give: the identity when they agree exactly; `None` when either scan has
+/// no pose.
+fn off_the_poses(e: &Edge, at: impl Fn(usize) -> Option<Isometry3<f64>>) -> Option<Isometry3<f64>> {
+    let (ti, tj) = (at(e.target)?, at(e.source)?);
+    Some((ti.inverse() * tj) * measured(e).inverse())
 }
 
 /// When edge `e` joins scan `k` to another scan: that scan, and the pose of `k` that the edge
@@ -1123,11 +1129,10 @@ fn tree_and_check(
         .iter()
         .copied()
         .filter(|&e| {
-            let (i, j) = (edges[e].target, edges[e].source);
-            let (Some(ti), Some(tj)) = (poses[i], poses[j]) else {
+            let Some(off) = off_the_poses(&edges[e], |k| poses[k]) else {
                 return false;
             };
-            tree.contains(&e) || agree(&((ti.inverse() * tj) * measured(&edges[e]).inverse()))
+            tree.contains(&e) || agree(&off)
         })
         .collect();
     (poses, kept)
@@ -1268,7 +1273,7 @@ mod tests {
             closure_min_hops: 3,
             ..AlignSettings::default()
         };
-        let chosen = closure_pair_list(&scans, &edges, &poses, &s);
+        let chosen = closure_pair_list(&scans, &edges, &poses, &s).unwrap();
         let ring = |i: usize, j: usize| i.abs_diff(j).min(n - i.abs_diff(j));
         assert!(chosen.len() >= 4, "{chosen:?}");
         assert_eq!(ring(chosen[0].0, chosen[0].1), 6, "{chosen:?}");
@@ -1286,17 +1291,21 @@ mod tests {
             closure_min_hops: 5,
             ..s.clone()
         };
-        let chosen = closure_pair_list(&scans, &edges, &poses, &five);
+        let chosen = closure_pair_list(&scans, &edges, &poses, &five).unwrap();
         assert_eq!(chosen.len(), 2, "{chosen:?}");
         assert!(chosen.iter().all(|&(i, j)| ring(i, j) >= 5), "{chosen:?}");
         // Up to `all_pairs_up_to` scans every pair is registered already; 0 turns it off.
         let dense = AlignSettings::default();
-        assert!(closure_pair_list(&scans, &edges, &poses, &dense).is_empty());
+        assert!(closure_pair_list(&scans, &edges, &poses, &dense)
+            .unwrap()
+            .is_empty());
         let off = AlignSettings {
             closure_pairs: 0,
             ..s
         };
-        assert!(closure_pair_list(&scans, &edges, &poses, &off).is_empty());
+        assert!(closure_pair_list(&scans, &edges, &poses, &off)
+            .unwrap()
+            .is_empty());
     }
 
     #[test]
