@@ -4,13 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use nalgebra::{Isometry3, Matrix4};
-use sdfreg_core::geometry::se3::isometry_from_matrix;
+use nalgebra::Isometry3;
 use sdfreg_core::io::write_mesh;
-use sdfreg_core::{AlignSettings, Alignment};
+use sdfreg_core::views::poses_file;
+use sdfreg_core::AlignSettings;
 
 use crate::args::AlignArgs;
-use crate::output::matrix_rows;
 
 /// Some scans were left out (exit code 3, as a batch with failed rows).
 #[derive(Debug, thiserror::Error)]
@@ -87,7 +86,8 @@ pub fn run(a: AlignArgs) -> Result<()> {
     for (k, why) in &alignment.left_out {
         eprintln!("sdfreg: {}: left out: {why}", a.scans[index[*k]].display());
     }
-    let json = poses_json(&a.scans, &index, &unreadable, &alignment);
+    let files: Vec<String> = a.scans.iter().map(|p| p.display().to_string()).collect();
+    let json = poses_file::poses_json(&alignment, &files, &index, &unreadable);
     std::fs::write(&a.output, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("{}", a.output.display()))?;
     if a.save_model.is_some() || a.mesh.is_some() {
@@ -128,115 +128,25 @@ pub fn run(a: AlignArgs) -> Result<()> {
     Ok(())
 }
 
-/// poses.json: per scan `file` and `transformation` (scan into the anchor's frame; null when
-/// left out, with `left_out` saying why) and `fitness`; `edges`; the times; what the consensus
-/// stage did (zeros when it did not run).
-fn poses_json(
-    files: &[PathBuf],
-    index: &[usize],
-    unreadable: &[(usize, String)],
-    alignment: &Alignment,
-) -> serde_json::Value {
-    let name = |k: usize| files[index[k]].display().to_string();
-    let scans: Vec<serde_json::Value> = (0..files.len())
-        .map(|f| {
-            let file = files[f].display().to_string();
-            if let Some((_, why)) = unreadable.iter().find(|(k, _)| *k == f) {
-                return serde_json::json!({"file": file, "transformation": null, "left_out": why});
-            }
-            let k = index.iter().position(|&i| i == f).expect("readable");
-            let mut v = serde_json::json!({
-                "file": file,
-                "transformation": alignment.poses[k].map(|p| matrix_rows(&p.to_homogeneous())),
-                "fitness": alignment.fitness[k],
-            });
-            if let Some((_, why)) = alignment.left_out.iter().find(|(i, _)| *i == k) {
-                v["left_out"] = why.clone().into();
-            }
-            v
-        })
-        .collect();
-    let edges: Vec<serde_json::Value> = alignment
-        .edges
-        .iter()
-        .map(|e| {
-            let mut v = serde_json::json!({
-                "target": name(e.target),
-                "source": name(e.source),
-                "fitness": e.fitness(),
-                "kept": e.kept,
-            });
-            match &e.registration {
-                Ok(r) => v["transformation"] = matrix_rows(&r.matrix()).into(),
-                Err(why) => v["error"] = why.clone().into(),
-            }
-            if let Some(share) = e.in_free_space {
-                v["in_free_space"] = share.into();
-            }
-            v
-        })
-        .collect();
-    let t = &alignment.times;
-    let c = &alignment.consensus;
-    serde_json::json!({
-        "convention": "transformation maps the scan's coordinates into the anchor scan's frame",
-        "anchor": name(alignment.anchor),
-        "scans": scans,
-        "edges": edges,
-        "time_ms": alignment.time.as_secs_f64() * 1e3,
-        "stage_ms": {
-            "models": t.models.as_secs_f64() * 1e3,
-            "pairs": t.pairs.as_secs_f64() * 1e3,
-            "graph": t.graph.as_secs_f64() * 1e3,
-            "unplaced": t.unplaced.as_secs_f64() * 1e3,
-            "consensus": t.consensus.as_secs_f64() * 1e3,
-            "joint": t.joint.as_secs_f64() * 1e3,
-        },
-        "consensus": {
-            "pairs": c.pairs,
-            "iterations": c.iterations,
-            "mean_residual_before": c.before,
-            "mean_residual_after": c.after,
-            "undone": c.undone,
-        },
-    })
-}
-
-/// Initial poses from a poses.json (its `scans[].transformation`, in order; one per scan).
+/// Initial poses from a poses file (its `scans[].transformation`, in order; one per scan).
 fn read_poses(path: &Path, n: usize) -> Result<Vec<Isometry3<f64>>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
-    let v: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not JSON (expected a poses.json)", path.display()))?;
-    let scans = v["scans"].as_array().with_context(|| {
-        format!(
-            "{}: no \"scans\" list (expected a poses.json)",
-            path.display()
-        )
-    })?;
-    if scans.len() != n {
+    let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
+    let poses = poses_file::read_poses(&bytes, path)?;
+    if poses.len() != n {
         bail!(
             "{}: {} poses for {n} scans (one per scan, in order)",
             path.display(),
-            scans.len()
+            poses.len()
         );
     }
-    scans
-        .iter()
+    poses
+        .into_iter()
         .enumerate()
-        .map(|(k, s)| {
-            let rows: Vec<Vec<f64>> = serde_json::from_value(s["transformation"].clone())
-                .ok()
-                .filter(|r: &Vec<Vec<f64>>| r.len() == 4 && r.iter().all(|row| row.len() == 4))
-                .with_context(|| {
-                    format!(
-                        "{}: scans[{k}].transformation is not a 4×4 matrix",
-                        path.display()
-                    )
-                })?;
-            let m = Matrix4::from_fn(|r, c| rows[r][c]);
-            isometry_from_matrix(&m).with_context(|| {
+        .map(|(k, pose)| {
+            pose.with_context(|| {
                 format!(
-                    "{}: scans[{k}].transformation is not a rigid transform",
+                    "{}: scans[{k}] has no transformation (left out of the alignment that wrote \
+                     it): --init needs a pose for every scan",
                     path.display()
                 )
             })

@@ -1,7 +1,7 @@
 //! How the CLI writes results: 4×4 matrices as text, and registrations as JSON with the same
 //! snake_case names as the Python binding (`stop_reason: "small_step"`, `stages`, …).
 
-use nalgebra::{Matrix4, SMatrix};
+use nalgebra::Matrix4;
 use sdfreg_core::{Degeneracy, Registration};
 
 /// The 4×4 as four lines of four numbers, each written by `number`.
@@ -17,10 +17,7 @@ pub fn matrix_text(m: &Matrix4<f64>) -> String {
     matrix_lines(m, |v| format!("{v:.9}"))
 }
 
-/// A matrix as a list of rows (row-major nested lists in JSON).
-pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
-    (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
-}
+pub use sdfreg_core::geometry::se3::matrix_rows;
 
 /// The free motions as JSON objects: `kind`, `axis`, `point`, `relative_eigenvalue`.
 pub fn free_motions_json(d: &Degeneracy) -> serde_json::Value {

@@ -1114,6 +1114,64 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
     }
     assert!(!v["edges"].as_array().unwrap().is_empty());
     assert!(v["stage_ms"]["pairs"].as_f64().unwrap() > 0.0);
+    assert_eq!(
+        (v["format"].as_str(), v["version"].as_u64()),
+        (Some("sdfreg-poses"), Some(1))
+    );
+    // Read back as --init: the left-out scan has no pose to start from, named; a foreign file
+    // is refused by name; the three views' poses start a run that keeps them.
+    let init = |scans: &[&str], file: &std::path::Path| {
+        let mut cmd = sdfreg();
+        cmd.arg("align");
+        for f in scans {
+            cmd.arg(dir.path().join(f));
+        }
+        let out = dir.path().join("again.json");
+        let _ = std::fs::remove_file(&out);
+        let run = cmd
+            .args(QUICK)
+            .arg("--init")
+            .arg(file)
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        (run, out)
+    };
+    let views = ["view_0.ply", "view_1.ply", "view_2.ply"];
+    let (run, _) = init(
+        &["view_0.ply", "view_1.ply", "broken.xyz", "view_2.ply"],
+        &poses,
+    );
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("poses.json: scans[2] has no transformation"),
+        "{err}"
+    );
+    let (run, _) = init(&views, &model);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("merged.sdfm:") && err.contains("not a poses file"),
+        "{err}"
+    );
+    let mut readable = v.clone();
+    readable["scans"] = serde_json::json!([scans[0], scans[1], scans[3]]);
+    let three = dir.path().join("three.json");
+    std::fs::write(&three, readable.to_string()).unwrap();
+    let (run, out) = init(&views, &three);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let again =
+        sdfreg_core::views::poses_file::read_poses(&std::fs::read(&out).unwrap(), &out).unwrap();
+    for (k, t) in truth.iter().enumerate() {
+        let m = again[k].unwrap().to_homogeneous();
+        assert!((m - t.to_homogeneous()).amax() < 0.01, "scan {k}: {m}");
+    }
     // The merged model loads, and its mesh is a surface.
     assert!(sdfreg_core::SdfModel::load(&model).is_ok());
     let (vertices, triangles) = sdfreg_core::io::read_mesh(&mesh).unwrap();

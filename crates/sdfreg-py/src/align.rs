@@ -6,6 +6,8 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
+use sdfreg_core::views::poses_file;
+
 use crate::convert;
 use crate::error;
 use crate::model::PySdfModel;
@@ -253,6 +255,35 @@ impl PyAlignment {
         Ok(d)
     }
 
+    // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+    /// The poses file of this alignment, as ``sdfreg align --output poses.json`` writes it
+    /// (``format`` ``"sdfreg-poses"``; per scan ``file``, ``transformation`` or null,
+    /// ``fitness``; ``edges``; the times): write it to a file, read it back with
+    /// :func:`read_poses`.
+    ///
+    /// Args:
+    ///     files: A name per scan, in order (default ``"scan 0"``, ``"scan 1"``, …).
+    ///
+    /// Raises:
+    ///     ValueError: ``files`` does not name every scan once.
+    #[pyo3(signature = (files = None))]
+    fn to_json(&self, files: Option<Vec<String>>) -> PyResult<String> {
+        let n = self.alignment.poses.len();
+        let files = files.unwrap_or_else(|| (0..n).map(|k| format!("scan {k}")).collect());
+        if files.len() != n {
+            return Err(error::argument(
+                "files",
+                format!(
+                    "{} names for {n} scans (one per scan, in order)",
+                    files.len()
+                ),
+            ));
+        }
+        let index: Vec<usize> = (0..n).collect();
+        let json = poses_file::poses_json(&self.alignment, &files, &index, &[]);
+        Ok(serde_json::to_string_pretty(&json).map_err(|e| error::argument("files", e))? + "\n")
+    }
+
     fn __repr__(&self) -> String {
         let placed = self.alignment.poses.iter().filter(|p| p.is_some()).count();
         format!(
@@ -264,4 +295,33 @@ impl PyAlignment {
             self.alignment.time.as_secs_f64()
         )
     }
+}
+
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Reads the poses of a poses file (``sdfreg align --output poses.json``,
+/// :meth:`Alignment.to_json`): per scan, in order, its 4×4 (scan into the anchor's frame), None
+/// for a scan left out. A list of 4×4s passes as ``align(scans, init=...)``.
+///
+/// Raises:
+///     OSError: the file cannot be read (``FileNotFoundError``, …), is not JSON (the message
+///         names the line), is another program's or another sdfreg file, of a newer version,
+///         or holds a transformation that is not a rigid 4×4 (the message names the scan).
+#[pyfunction]
+pub fn read_poses(
+    py: Python<'_>,
+    path: std::path::PathBuf,
+) -> PyResult<Vec<Option<Bound<'_, PyArray2<f64>>>>> {
+    let poses = py
+        .detach(|| {
+            let bytes = std::fs::read(&path).map_err(|source| sdfreg_core::IoError::Io {
+                path: path.clone(),
+                source,
+            })?;
+            poses_file::read_poses(&bytes, &path)
+        })
+        .map_err(error::io)?;
+    Ok(poses
+        .iter()
+        .map(|p| p.map(|t| convert::matrix4(py, &t.to_homogeneous())))
+        .collect())
 }

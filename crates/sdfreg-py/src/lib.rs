@@ -268,6 +268,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(register, m)?)?;
     m.add_function(wrap_pyfunction!(align::align, m)?)?;
     m.add_class::<align::PyAlignment>()?;
+    m.add_function(wrap_pyfunction!(align::read_poses, m)?)?;
     m.add_function(wrap_pyfunction!(batch::register_many, m)?)?;
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;

@@ -3,6 +3,8 @@ input refused."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -32,7 +34,7 @@ def views(n: int, seed: int):
     return scans, [first @ p for p in poses]
 
 
-def test_partial_views_align_and_a_foreign_view_is_left_out() -> None:
+def test_partial_views_align_and_a_foreign_view_is_left_out(tmp_path: Path) -> None:
     scans, truth = views(4, 1)
     rng = np.random.default_rng(9)
     box = rng.uniform(-0.4, 0.4, (1500, 3))
@@ -56,6 +58,39 @@ def test_partial_views_align_and_a_foreign_view_is_left_out() -> None:
     # One model of them all: every placed view lies on it.
     moved = scans[1] @ a.poses[1][:3, :3].T + a.poses[1][:3, 3]
     assert np.median(np.abs(a.model.distance(moved))) < 0.01
+    # The poses file: written as the CLI writes it, read back to the last digits, a left-out
+    # scan as None; the placed views' poses start another alignment that keeps them.
+    names = [f"view_{k}.ply" for k in range(len(scans))]
+    text = a.to_json(names)
+    assert '"format": "sdfreg-poses"' in text and '"view_2.ply"' in text
+    path = tmp_path / "poses.json"
+    path.write_text(text, encoding="utf-8")
+    back = sdfreg.read_poses(path)
+    assert back[2] is None and len(back) == len(scans)
+    for k, pose in enumerate(a.poses):
+        if pose is not None:
+            assert np.abs(back[k] - pose).max() < 1e-12, k
+    placed = [k for k in range(len(scans)) if k != 2]
+    again = sdfreg.align([scans[k] for k in placed], init=[back[k] for k in placed], **QUICK)
+    for k, pose in zip(placed, again.poses):
+        rot, trans = pose_errors(pose, truth[k])
+        assert rot < 1.0 and trans < 0.01, (k, rot, trans)
+    assert '"file": "scan 0"' in again.to_json()
+    with pytest.raises(ValueError, match="files: 1 names for 5 scans"):
+        a.to_json(["one.ply"])
+    # Files that are not poses files: refused as OSError, naming the file and what is wrong.
+    with pytest.raises(FileNotFoundError, match="missing.json"):
+        sdfreg.read_poses(tmp_path / "missing.json")
+    for name, content, what in [
+        ("cut.json", text[: len(text) // 2], "not a poses file"),
+        ("cloud.json", "1 2 3\n", "not a poses file"),
+        ("batch.json", '{"format": "sdfreg-batch-results", "version": 1}', "not a poses file"),
+        ("newer.json", text.replace('"version": 1', '"version": 9'), "newer"),
+        ("skewed.json", text.replace("[\n        [\n          1.0", "[\n        [\n          2.0", 1), "scans\\[0\\]"),
+    ]:
+        (tmp_path / name).write_text(content, encoding="utf-8")
+        with pytest.raises(OSError, match=f"{name}.*{what}"):
+            sdfreg.read_poses(tmp_path / name)
 
 
 def test_the_anchor_and_bad_input() -> None:

@@ -9,11 +9,11 @@
 //! Entry points: [`hat`], [`vee`], [`exp_so3`], [`log_so3`], [`exp_se3`], [`log_se3`],
 //! [`adjoint`],
 //! [`rotation_angle`] (geodesic distance between rotations), [`isometry_from_matrix`] (a user's
-//! 4×4 matrix checked to be rigid).
+//! 4×4 matrix checked to be rigid), [`matrix_rows`] (a matrix as JSON's nested rows).
 
 use nalgebra::{
-    Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, SVector, Translation3, UnitQuaternion,
-    Vector3, Vector6,
+    Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, SMatrix, SVector, Translation3,
+    UnitQuaternion, Vector3, Vector6,
 };
 
 /// How far a user's 3×3 block may be from a rotation (`|RᵀR − I|` entries, `|det R − 1|`), and
@@ -38,6 +38,12 @@ pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Option<Isometry3<f64>> {
         Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
         rot,
     ))
+}
+
+/// A matrix as a list of rows (row-major nested lists in JSON: the 4×4 transformations and
+/// 6×6 information matrices of the CLI's and the poses file's JSON).
+pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
+    (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
 }
 
 /// The similarity of a homogeneous 4×4 matrix `[s R t; 0 1]` (`s > 0`): its rigid part

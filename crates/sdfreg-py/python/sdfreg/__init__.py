@@ -8,7 +8,7 @@ Tuning goes in settings objects, one per stage: ``register(s, t, lm=LmSettings(m
 SDF once; ``register(source, model)`` then registers without fitting, and the model saves,
 loads and pickles. ``register_many(pairs)`` registers many pairs on every core;
 ``sdfreg.dask`` spreads them over a Dask cluster. ``align(scans)`` puts many views into one
-frame.
+frame; ``Alignment.to_json()`` and ``read_poses(path)`` write and read its poses file.
 """
 
 from ._sdfreg import (
@@ -33,6 +33,7 @@ from ._sdfreg import (
     mesh_model,
     read_mesh,
     read_point_cloud,
+    read_poses,
     register,
     register_many,
     write_point_cloud,
@@ -60,6 +61,7 @@ __all__ = [
     "mesh_model",
     "read_mesh",
     "read_point_cloud",
+    "read_poses",
     "register",
     "register_many",
     "write_point_cloud",

@@ -49,6 +49,7 @@ __all__ = [
     "_mesh_model_from_parts",
     "_core_defaults",
     "read_point_cloud",
+    "read_poses",
     "register",
     "register_many",
     "write_point_cloud",
@@ -796,6 +797,29 @@ class Alignment:
     def stage_times_s(self) -> Dict[str, float]:
         """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``unplaced``,
         ``consensus``, ``joint``."""
+    def to_json(self, files: Optional[List[str]] = None) -> str:
+        """The poses file of this alignment, as ``sdfreg align --output poses.json`` writes it
+        (``format`` ``"sdfreg-poses"``; per scan ``file``, ``transformation`` or null,
+        ``fitness``; ``edges``; the times): write it to a file, read it back with
+        :func:`read_poses`.
+
+        Args:
+            files: A name per scan, in order (default ``"scan 0"``, ``"scan 1"``, …).
+
+        Raises:
+            ValueError: ``files`` does not name every scan once.
+        """
+
+def read_poses(path: _PathLike) -> List[Optional[npt.NDArray[np.float64]]]:
+    """Reads the poses of a poses file (``sdfreg align --output poses.json``,
+    :meth:`Alignment.to_json`): per scan, in order, its 4×4 (scan into the anchor's frame), None
+    for a scan left out. A list of 4×4s passes as ``align(scans, init=...)``.
+
+    Raises:
+        OSError: the file cannot be read (``FileNotFoundError``, …), is not JSON (the message
+            names the line), is another program's or another sdfreg file, of a newer version,
+            or holds a transformation that is not a rigid 4×4 (the message names the scan).
+    """
 
 def register_many(
     pairs: Iterable[
