@@ -67,7 +67,7 @@ fn the_anchor_and_the_initial_poses_are_honoured() {
         nalgebra::Vector3::new(0.05, 0.0, 0.0),
         nalgebra::Vector3::new(0.0, 0.0, 1f64.to_radians()),
     );
-    let init: Vec<Isometry3<f64>> = truth.iter().map(|t| nudge * t).collect();
+    let init: Vec<Option<Isometry3<f64>>> = truth.iter().map(|t| Some(nudge * t)).collect();
     let a = align(&scans, Some(&init), &s).unwrap();
     for (k, pose) in a.poses.iter().enumerate() {
         // Poses map into scan 1's frame.
@@ -78,9 +78,35 @@ fn the_anchor_and_the_initial_poses_are_honoured() {
     // One model held at a time instead of all three: the same poses, bit for bit.
     let one = AlignSettings {
         models_at_once: 1,
-        ..s
+        ..s.clone()
     };
     assert_eq!(align(&scans, Some(&init), &one).unwrap().poses, a.poses);
+    // A scan without an initial pose (a gap in the odometry, a scan left out of the poses file
+    // given): its pairs are registered from nothing, the others' from theirs.
+    let gap: Vec<Option<Isometry3<f64>>> = init
+        .iter()
+        .enumerate()
+        .map(|(k, p)| p.filter(|_| k != 2))
+        .collect();
+    let b = align(&scans, Some(&gap), &s).unwrap();
+    for (k, pose) in b.poses.iter().enumerate() {
+        let expected = truth[1].inverse() * truth[k];
+        let (rot, trans) = pose_errors(&pose.unwrap(), &expected);
+        assert!(
+            rot < 0.3 && trans < 0.015,
+            "view {k} with a gap: {rot}° {trans} m"
+        );
+    }
+    for e in &b.edges {
+        let given = e.registration.as_ref().unwrap().stages.initial.given;
+        assert_eq!(
+            given,
+            e.source != 2 && e.target != 2,
+            "{} -> {}",
+            e.source,
+            e.target
+        );
+    }
 }
 
 #[test]
@@ -167,7 +193,7 @@ fn too_few_scans_a_bad_anchor_and_bad_initial_poses_are_refused() {
     assert!(e.contains("align.anchor"), "{e}");
     let e = align(
         &scans,
-        Some(&[Isometry3::identity()]),
+        Some(&[Some(Isometry3::identity())]),
         &AlignSettings::default(),
     )
     .unwrap_err()

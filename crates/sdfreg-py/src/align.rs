@@ -28,7 +28,8 @@ use crate::settings::{Caller, SettingsArgs};
 /// Args:
 ///     scans: A sequence of (N, 3) point arrays, each in its own frame, the same units.
 ///     init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
-///         angles, odometry), or None.
+///         angles, odometry; None for a scan without one, whose pairs then start from nothing,
+///         as :func:`read_poses` gives a scan left out), or None.
 ///     anchor: The scan whose frame the poses map into.
 ///     closure_pairs: Above 16 scans, the pairs each scan joins once the graph has placed
 ///         them, between scans that overlap and lie at least 5 kept edges apart (loop
@@ -81,12 +82,18 @@ pub fn align<'py>(
         .map(|(k, s)| convert::points(&s?, &format!("scans[{k}]")))
         .collect::<PyResult<_>>()?;
     let init = init
-        .map(|poses| -> PyResult<Vec<nalgebra::Isometry3<f64>>> {
+        .map(|poses| -> PyResult<Vec<Option<nalgebra::Isometry3<f64>>>> {
             poses
                 .try_iter()
                 .map_err(|_| error::argument("init", "expected a sequence of 4×4 arrays"))?
                 .enumerate()
-                .map(|(k, m)| convert::isometry(&m?, &format!("init[{k}]")))
+                .map(|(k, m)| {
+                    let m = m?;
+                    match m.is_none() {
+                        true => Ok(None),
+                        false => convert::isometry(&m, &format!("init[{k}]")).map(Some),
+                    }
+                })
                 .collect()
         })
         .transpose()?;
@@ -300,7 +307,7 @@ impl PyAlignment {
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
 /// Reads the poses of a poses file (``sdfreg align --output poses.json``,
 /// :meth:`Alignment.to_json`): per scan, in order, its 4×4 (scan into the anchor's frame), None
-/// for a scan left out. A list of 4×4s passes as ``align(scans, init=...)``.
+/// for a scan left out. The list passes as ``align(scans, init=...)``.
 ///
 /// Raises:
 ///     OSError: the file cannot be read (``FileNotFoundError``, …), is not JSON (the message

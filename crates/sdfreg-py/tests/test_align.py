@@ -76,6 +76,13 @@ def test_partial_views_align_and_a_foreign_view_is_left_out(tmp_path: Path) -> N
         rot, trans = pose_errors(pose, truth[k])
         assert rot < 1.0 and trans < 0.01, (k, rot, trans)
     assert '"file": "scan 0"' in again.to_json()
+    # A scan without a pose in init (as read_poses gives one left out) starts from nothing.
+    gap = sdfreg.align([scans[k] for k in placed], init=[back[0], None, back[3], back[4]], **QUICK)
+    for k, pose in zip(placed, gap.poses):
+        rot, trans = pose_errors(pose, truth[k])
+        assert rot < 1.0 and trans < 0.01, (k, rot, trans)
+    given = {(e["source"], e["target"]): e["registration"].stages["initial"]["given"] for e in gap.edges}
+    assert all(g == (1 not in pair) for pair, g in given.items()), given
     with pytest.raises(ValueError, match="files: 1 names for 5 scans"):
         a.to_json(["one.ply"])
     # Files that are not poses files: refused as OSError, naming the file and what is wrong.

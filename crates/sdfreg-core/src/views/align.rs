@@ -9,8 +9,8 @@
 //!    its next [`AlignSettings::neighbours`] in order, wrapping round (a loop); of each pair the
 //!    scan with more points is the target, so the scans' order does not change the pairs (of
 //!    two with as many, each scan is the target of about half its pairs, so that a bias of the
-//!    one-sided objective does not grow along the order); from the given initial poses when
-//!    there are any, else from nothing;
+//!    one-sided objective does not grow along the order); from the given initial poses of
+//!    both scans when there are any, else from nothing;
 //! 3. **graph** — candidate edges (fitness ≥ [`AlignSettings::min_fitness`]; of a pair
 //!    registered both ways, the way of higher fitness); a scan with several candidate edges that
 //!    no cycle through a third scan confirms is kept only when two of its edges put it at the
@@ -320,10 +320,11 @@ fn merged_except(
 
 /// Aligns `scans` (each in its own frame, user units) into the frame of
 /// [`AlignSettings::anchor`]; `init`, when given, holds each scan's approximate pose in that
-/// frame (a turntable's angles, odometry). See the module docs.
+/// frame (a turntable's angles, odometry; `None` for a scan without one: its pairs are
+/// registered from nothing). See the module docs.
 pub fn align(
     scans: &[Vec<Point3<f64>>],
-    init: Option<&[Isometry3<f64>]>,
+    init: Option<&[Option<Isometry3<f64>>]>,
     s: &AlignSettings,
 ) -> Result<Alignment, Error> {
     let start = Instant::now();
@@ -363,7 +364,7 @@ pub fn align(
     }
     // Stage 2 again for `pairs` (from the poses `from`), and the graph made again.
     let more_pairs = |pairs: &[(usize, usize)],
-                      from: Option<&[Isometry3<f64>]>,
+                      from: Option<&[Option<Isometry3<f64>>]>,
                       edges: &mut Vec<Edge>,
                       left_out: &mut Vec<(usize, String)>,
                       times: &mut AlignTimes| {
@@ -383,11 +384,13 @@ pub fn align(
     let closures = closure_pair_list(scans, &edges, &poses, s)?;
     lap(&mut clock, &mut times.graph);
     if !closures.is_empty() {
-        let at: Vec<Isometry3<f64>> = poses
-            .iter()
-            .map(|p| p.unwrap_or_else(Isometry3::identity))
-            .collect();
-        poses = more_pairs(&closures, Some(&at), &mut edges, &mut left_out, &mut times)?;
+        poses = more_pairs(
+            &closures,
+            Some(&poses),
+            &mut edges,
+            &mut left_out,
+            &mut times,
+        )?;
     }
     clock = Instant::now();
     let consensus = consensus(scans, &mut poses, s.anchor, &s.consensus);
@@ -429,15 +432,23 @@ fn is_left_out(left_out: &[(usize, String)], k: usize) -> bool {
 }
 
 /// Adds the time since `clock` to `time` and restarts `clock`.
+/// Scan `j`'s pose in scan `i`'s frame by the poses `p` (each scan into one frame), when both
+/// have one.
+fn relative(p: Option<&[Option<Isometry3<f64>>]>, i: usize, j: usize) -> Option<Isometry3<f64>> {
+    let p = p?;
+    Some(p[i]?.inverse() * p[j]?)
+}
+
 fn lap(clock: &mut Instant, time: &mut Duration) {
     *time += clock.elapsed();
     *clock = Instant::now();
 }
 
-/// At least two scans, valid settings, an anchor among the scans, one initial pose per scan.
+/// At least two scans, valid settings, an anchor among the scans, one initial pose (or `None`)
+/// per scan.
 fn check_input(
     scans: &[Vec<Point3<f64>>],
-    init: Option<&[Isometry3<f64>]>,
+    init: Option<&[Option<Isometry3<f64>>]>,
     s: &AlignSettings,
 ) -> Result<(), Error> {
     if scans.len() < 2 {
@@ -524,7 +535,7 @@ fn models_and_pairs(
     pairs: &[(usize, usize)],
     left_out: &mut Vec<(usize, String)>,
     fit_all: bool,
-    init: Option<&[Isometry3<f64>]>,
+    init: Option<&[Option<Isometry3<f64>>]>,
     s: &AlignSettings,
     maps: &[OnceLock<Option<DepthMap>>],
     times: &mut AlignTimes,
@@ -562,7 +573,7 @@ fn models_and_pairs(
             .map(|&(i, j, model)| Pair {
                 source: Cow::Borrowed(&scans[j]),
                 target: PairTarget::Model(model),
-                init: init.map(|p| p[i].inverse() * p[j]),
+                init: relative(init, i, j),
                 seed: None,
             })
             .collect();
@@ -807,7 +818,7 @@ fn unplaced_against_partners(
     edges: &[Edge],
     poses: &[Option<Isometry3<f64>>],
     left_out: &mut Vec<(usize, String)>,
-    init: Option<&[Isometry3<f64>]>,
+    init: Option<&[Option<Isometry3<f64>>]>,
     s: &AlignSettings,
 ) -> Vec<Option<Isometry3<f64>>> {
     let settings = s.registration();
@@ -830,7 +841,7 @@ fn unplaced_against_partners(
         }
         // A fit or a registration that fails measures nothing: the scan's pairs then go round
         // the other way, as before this stage (the scans themselves were checked by stage 1).
-        let start = init.map(|p| p[s.anchor].inverse() * p[k]);
+        let start = relative(init, s.anchor, k);
         let Ok(r) = against_the_others(scans, &partners, k, start.as_ref(), &settings) else {
             continue;
         };
@@ -859,7 +870,7 @@ fn unplaced_against_partners(
 fn pose_graph(
     scans: &[Vec<Point3<f64>>],
     edges: &mut [Edge],
-    init: Option<&[Isometry3<f64>]>,
+    init: Option<&[Option<Isometry3<f64>>]>,
     placed: &[Option<Isometry3<f64>>],
     s: &AlignSettings,
 ) -> Vec<Option<Isometry3<f64>>> {
@@ -931,16 +942,16 @@ fn pose_graph(
     for e in kept {
         edges[e].kept = true;
     }
-    // Gauss–Newton over the placed scans; from the given poses when they are all placed.
+    // Gauss–Newton over the placed scans; from the given poses when the anchor and every
+    // placed scan have one, else from the tree's.
     let placed: Vec<usize> = (0..n).filter(|&k| poses[k].is_some()).collect();
     let index = |k: usize| placed.iter().position(|&p| p == k);
-    let mut nodes: Vec<Isometry3<f64>> = placed
+    let given: Option<Vec<Isometry3<f64>>> = placed
         .iter()
-        .map(|&k| match init {
-            Some(p) => p[s.anchor].inverse() * p[k],
-            None => poses[k].expect("placed"),
-        })
+        .map(|&k| relative(init, s.anchor, k))
         .collect();
+    let mut nodes: Vec<Isometry3<f64>> =
+        given.unwrap_or_else(|| placed.iter().map(|&k| poses[k].expect("placed")).collect());
     if let Some(a) = index(s.anchor) {
         for round in 0..=RECHECKS {
             let graph: Vec<GraphEdge> = edges

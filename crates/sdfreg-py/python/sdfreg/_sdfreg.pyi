@@ -701,7 +701,7 @@ def register(
 def align(
     scans: Iterable[npt.ArrayLike],
     *,
-    init: Optional[Iterable[npt.ArrayLike]] = None,
+    init: Optional[Iterable[Optional[npt.ArrayLike]]] = None,
     anchor: int = 0,
     closure_pairs: int = 2,
     joint_rounds: int = 0,
@@ -723,7 +723,8 @@ def align(
     Args:
         scans: A sequence of (N, 3) point arrays, each in its own frame, the same units.
         init: Approximate poses, one 4×4 per scan (scan into the anchor's frame: a turntable's
-            angles, odometry), or None.
+            angles, odometry; None for a scan without one, whose pairs then start from nothing,
+            as :func:`read_poses` gives a scan left out), or None.
         anchor: The scan whose frame the poses map into.
         closure_pairs: Above 16 scans, the pairs each scan joins once the graph has placed
             them, between scans that overlap and lie at least 5 kept edges apart (loop
@@ -813,7 +814,7 @@ class Alignment:
 def read_poses(path: _PathLike) -> List[Optional[npt.NDArray[np.float64]]]:
     """Reads the poses of a poses file (``sdfreg align --output poses.json``,
     :meth:`Alignment.to_json`): per scan, in order, its 4×4 (scan into the anchor's frame), None
-    for a scan left out. A list of 4×4s passes as ``align(scans, init=...)``.
+    for a scan left out. The list passes as ``align(scans, init=...)``.
 
     Raises:
         OSError: the file cannot be read (``FileNotFoundError``, …), is not JSON (the message
