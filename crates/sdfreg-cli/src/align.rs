@@ -131,8 +131,7 @@ pub fn run(a: AlignArgs) -> Result<()> {
 /// Initial poses from a poses file (its `scans[].transformation`, in order; one per scan, `None`
 /// for a scan written without one: its pairs are registered from nothing).
 fn read_poses(path: &Path, n: usize) -> Result<Vec<Option<Isometry3<f64>>>> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
-    let poses = poses_file::read_poses(&bytes, path)?;
+    let poses = poses_file::load_poses(path)?;
     if poses.len() != n {
         bail!(
             "{}: {} poses for {n} scans (one per scan, in order)",

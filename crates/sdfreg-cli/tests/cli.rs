@@ -1146,8 +1146,7 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
     );
     let err = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(3), "{err}");
-    let again =
-        sdfreg_core::views::poses_file::read_poses(&std::fs::read(&out).unwrap(), &out).unwrap();
+    let again = sdfreg_core::views::poses_file::load_poses(&out).unwrap();
     assert!(again[2].is_none());
     for (k, t) in [(0, truth[0]), (1, truth[1]), (3, truth[2])] {
         let m = again[k].unwrap().to_homogeneous();
@@ -1170,8 +1169,7 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let again =
-        sdfreg_core::views::poses_file::read_poses(&std::fs::read(&out).unwrap(), &out).unwrap();
+    let again = sdfreg_core::views::poses_file::load_poses(&out).unwrap();
     for (k, t) in truth.iter().enumerate() {
         let m = again[k].unwrap().to_homogeneous();
         assert!((m - t.to_homogeneous()).amax() < 0.01, "scan {k}: {m}");

@@ -89,10 +89,10 @@ pub fn align<'py>(
                 .enumerate()
                 .map(|(k, m)| {
                     let m = m?;
-                    match m.is_none() {
-                        true => Ok(None),
-                        false => convert::isometry(&m, &format!("init[{k}]")).map(Some),
+                    if m.is_none() {
+                        return Ok(None);
                     }
+                    convert::isometry(&m, &format!("init[{k}]")).map(Some)
                 })
                 .collect()
         })
@@ -319,13 +319,7 @@ pub fn read_poses(
     path: std::path::PathBuf,
 ) -> PyResult<Vec<Option<Bound<'_, PyArray2<f64>>>>> {
     let poses = py
-        .detach(|| {
-            let bytes = std::fs::read(&path).map_err(|source| sdfreg_core::IoError::Io {
-                path: path.clone(),
-                source,
-            })?;
-            poses_file::read_poses(&bytes, &path)
-        })
+        .detach(|| poses_file::load_poses(&path))
         .map_err(error::io)?;
     Ok(poses
         .iter()

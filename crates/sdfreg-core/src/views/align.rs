@@ -431,7 +431,6 @@ fn is_left_out(left_out: &[(usize, String)], k: usize) -> bool {
     left_out.iter().any(|(i, _)| *i == k)
 }
 
-/// Adds the time since `clock` to `time` and restarts `clock`.
 /// Scan `j`'s pose in scan `i`'s frame by the poses `p` (each scan into one frame), when both
 /// have one.
 fn relative(p: Option<&[Option<Isometry3<f64>>]>, i: usize, j: usize) -> Option<Isometry3<f64>> {
@@ -439,6 +438,7 @@ fn relative(p: Option<&[Option<Isometry3<f64>>]>, i: usize, j: usize) -> Option<
     Some(p[i]?.inverse() * p[j]?)
 }
 
+/// Adds the time since `clock` to `time` and restarts `clock`.
 fn lap(clock: &mut Instant, time: &mut Duration) {
     *time += clock.elapsed();
     *clock = Instant::now();

@@ -1,6 +1,6 @@
 //! The poses file of an alignment (`sdfreg align SCAN... --output poses.json`,
 //! `Alignment.to_json()` in Python): JSON, written by [`poses_json`], read back by
-//! [`read_poses`] (`sdfreg align --init`, `sdfreg.read_poses`).
+//! [`load_poses`] (`sdfreg align --init`, `sdfreg.read_poses`) through [`read_poses`].
 //!
 //! Layout (version 1), one object:
 //! - `"format": "sdfreg-poses"`, `"version": 1`, `"sdfreg"` (the version that wrote it),
@@ -117,6 +117,16 @@ pub fn poses_json(
             "undone": c.undone,
         },
     })
+}
+
+/// Per scan of the poses file at `path`, its transformation or `None` ([`read_poses`] of the
+/// file's bytes); an [`IoError::Io`] when the file cannot be read.
+pub fn load_poses(path: &Path) -> Result<Vec<Option<Isometry3<f64>>>, IoError> {
+    let bytes = std::fs::read(path).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read_poses(&bytes, path)
 }
 
 /// Per scan of a poses file's contents (`path` names it in errors), in order, its
