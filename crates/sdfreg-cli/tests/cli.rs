@@ -1099,8 +1099,14 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         err.contains("broken.xyz: left out") && err.contains("broken.xyz:2: expected three"),
         "{err}"
     );
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
+    let text = std::fs::read_to_string(&poses).unwrap();
+    // The header first, as written (`head -3 poses.json` tells what the file is).
+    let keys: Vec<&str> = text.lines().skip(1).take(3).map(|l| l.trim()).collect();
+    assert!(
+        keys[0].starts_with("\"format\": \"sdfreg-poses\"") && keys[1].starts_with("\"version\""),
+        "{keys:?}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&text).unwrap();
     let scans = v["scans"].as_array().unwrap();
     assert_eq!(scans.len(), 4);
     assert!(scans[2]["transformation"].is_null() && scans[2]["left_out"].is_string());

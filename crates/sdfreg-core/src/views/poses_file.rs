@@ -158,7 +158,13 @@ pub fn read_poses(bytes: &[u8], path: &Path) -> Result<Vec<Option<Isometry3<f64>
             ));
         }
         match top.get("version").and_then(Value::as_u64) {
-            Some(v) if v <= VERSION => {}
+            Some(v) if (1..=VERSION).contains(&v) => {}
+            Some(0) => {
+                return Err(bad(
+                    None,
+                    "poses file version 0: no sdfreg writes it".into(),
+                ))
+            }
             Some(v) => {
                 return Err(bad(
                     None,
@@ -273,6 +279,7 @@ mod tests {
                 .contains("no \"scans\" list")
         );
         assert!(message(&good.replace("\"version\": 1", "\"version\": 2")).contains("newer"));
+        assert!(message(&good.replace("\"version\": 1", "\"version\": 0")).contains("version 0"));
         assert!(message(&good.replace("\"version\": 1", "\"version\": \"1\"")).contains("version"));
         // Not rigid, not 4×4, not numbers, missing.
         for m in [
