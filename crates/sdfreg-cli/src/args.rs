@@ -222,8 +222,9 @@ impl Common {
         }
         if let Some(v) = self.local_voxel {
             anyhow::ensure!(
-                v > 0.0 && v.is_finite(),
-                "--local-voxel: must be positive, got {v}"
+                v > 0.0 && v <= 1.0,
+                "--local-voxel: a fraction of the target's largest side, in (0, 1]; got {}",
+                shown(v)
             );
             s.fit.local.cells = ((1.0 / v).round() as usize).max(1);
             s.fit.local.spacings = 0.0;
@@ -234,9 +235,9 @@ impl Common {
         s.scale.enabled |= self.scale;
         if let Some(range) = &self.scale_range {
             (s.scale.min, s.scale.max) = (Some(range[0]), Some(range[1]));
-            s.scale
-                .validate()
-                .map_err(|e| anyhow::anyhow!("--scale-range {} {}: {e}", range[0], range[1]))?;
+            s.scale.validate().map_err(|e| {
+                anyhow::anyhow!("--scale-range {} {}: {e}", shown(range[0]), shown(range[1]))
+            })?;
         }
         Ok(s)
     }
@@ -251,10 +252,22 @@ impl Common {
             _ => return e,
         };
         match (setting, self.local_voxel, self.local_voxel_size) {
-            ("fit.local.cells", Some(v), _) => e.context(format!("--local-voxel {v}")),
-            ("fit.local.voxel_size", _, Some(v)) => e.context(format!("--local-voxel-size {v}")),
+            ("fit.local.cells", Some(v), _) => e.context(format!("--local-voxel {}", shown(v))),
+            ("fit.local.voxel_size", _, Some(v)) => {
+                e.context(format!("--local-voxel-size {}", shown(v)))
+            }
             _ => e,
         }
+    }
+}
+
+/// A flag's number as a user would write it: plain in [10⁻⁴, 10⁶), else in exponent form
+/// (`1e-300`, not 300 zeros).
+pub fn shown(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
     }
 }
 

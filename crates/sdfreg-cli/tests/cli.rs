@@ -952,7 +952,7 @@ fn a_local_voxel_finer_than_the_points_is_refused_at_once_naming_the_flag() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{command}: {err}");
         assert!(
-            err.starts_with("sdfreg: --local-voxel 0.000001: invalid setting `fit.local.cells`: a local voxel of 1.000e-6"),
+            err.starts_with("sdfreg: --local-voxel 1e-6: invalid setting `fit.local.cells`: a local voxel of 1.000e-6"),
             "{command}: {err}"
         );
         assert!(err.contains("use a voxel of at least"), "{command}: {err}");
@@ -969,9 +969,26 @@ fn a_local_voxel_finer_than_the_points_is_refused_at_once_naming_the_flag() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(
-        err.starts_with("sdfreg: --local-voxel-size 0.0000001: invalid setting `fit.local.voxel_size`: a local voxel of 1.000e-7 in the target's units"),
+        err.starts_with("sdfreg: --local-voxel-size 1e-7: invalid setting `fit.local.voxel_size`: a local voxel of 1.000e-7 in the target's units"),
         "{err}"
     );
+    // Larger than the target: a fraction above 1, or a size above the blob's largest side.
+    for (flag, value, says) in [
+        ("--local-voxel", "1.5", "--local-voxel: a fraction of the target's largest side, in (0, 1]; got 1.5"),
+        ("--local-voxel-size", "1e300", "--local-voxel-size 1e300: invalid setting `fit.local.voxel_size`: a local voxel of 1.000e300 in the target's units is above the target's largest side"),
+    ] {
+        let out = sdfreg()
+            .arg("fit")
+            .arg(dir.path().join("tgt.ply"))
+            .args(["--model", "local", flag, value])
+            .args(["-o", dir.path().join("m.sdfm").to_str().unwrap()])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag}: {err}");
+        assert!(err.contains(says), "{flag}: {err}");
+        assert!(!dir.path().join("m.sdfm").exists());
+    }
 }
 
 #[test]

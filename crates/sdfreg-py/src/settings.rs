@@ -281,9 +281,10 @@ settings_class! {
     ///     auto_ratio: Extent in point spacings from which ``"auto"`` is local.
     ///     cells: The voxel is at least the target's largest side over this…
     ///     voxel: The voxel as a fraction of the target's largest side, in place of ``cells``
-    ///         and ``spacings`` (makes ``"auto"`` local); None: from them.
+    ///         and ``spacings`` (makes ``"auto"`` local); None: from them. Above 1: a ValueError.
     ///     voxel_size: The voxel in the target's units (metres for a LiDAR scan), in place of
-    ///         ``cells`` and ``spacings`` (makes ``"auto"`` local); None: from them.
+    ///         ``cells`` and ``spacings`` (makes ``"auto"`` local); None: from them. Above the
+    ///         target's largest side: a ValueError.
     ///     spacings: …and at least this many target point spacings.
     ///     band: Voxels around each voxel holding target points that also get corrections.
     ///     batch: Projection queries about the target's points per Adam step (when the

@@ -213,8 +213,8 @@ def test_a_local_model_is_chosen_by_name_and_round_trips(pair) -> None:
 
 def test_a_local_voxel_in_the_targets_units(pair) -> None:
     """``LocalSettings(voxel_size=…)``: the voxel in the target's units, whatever its extent; it
-    makes ``"auto"`` local, survives pickling, and one finer than the points is refused naming
-    ``fit.local.voxel_size``."""
+    makes ``"auto"`` local, survives pickling, and one finer than the points or larger than the target is refused
+    naming ``fit.local.voxel_size``."""
     _, target, _ = pair
     extent = float((target.max(0) - target.min(0)).max())
     for units in (1.0, 1000.0):  # the same cloud in metres and in millimetres
@@ -226,6 +226,8 @@ def test_a_local_voxel_in_the_targets_units(pair) -> None:
         assert back.voxel == model.voxel and back.local_parameters == model.local_parameters
     with pytest.raises(ValueError, match=r"invalid setting `fit.local.voxel_size`: a local voxel of"):
         sdfreg.fit(target, fit=sdfreg.FitSettings(local=sdfreg.LocalSettings(voxel_size=1e-7 * extent)))
+    with pytest.raises(ValueError, match=r"`fit.local.voxel_size`: .* above the target's largest side"):
+        sdfreg.fit(target, fit=sdfreg.FitSettings(local=sdfreg.LocalSettings(voxel_size=2.0 * extent)))
     with pytest.raises(ValueError, match="fit.local.voxel_size"):
         sdfreg.LocalSettings(voxel_size=-1.0)
     with pytest.raises(ValueError, match="fit.local.global_rerun_below_fitness"):

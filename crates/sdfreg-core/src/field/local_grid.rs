@@ -81,7 +81,7 @@ pub struct LocalSettings {
     pub cells: usize,
     /// The voxel side as a fraction of the target's largest side, in place of `cells` and
     /// `spacings`; a voxel given makes the `auto` kind local. Default none. The fit sets it
-    /// from [`Self::voxel_size`].
+    /// from [`Self::voxel_size`]. Above 1 (a voxel larger than the target) it is refused.
     pub voxel: Option<f64>,
     /// The voxel side in the target's units (metres for a LiDAR scan), in place of `cells` and
     /// `spacings`: the fit sets [`Self::voxel`] from it and the target's largest side. Default
@@ -276,6 +276,18 @@ impl LocalSettings {
                 self.min_voxel_spacings,
                 spacing * to,
                 self.min_voxel_spacings * spacing * to
+            )));
+        }
+        // The unit frame's largest side is 1: a larger voxel is one cell about the whole target,
+        // whose corrections pin nothing (a Φ that leaves the pose free).
+        if voxel > 1.0 + 1e-9 {
+            return Err(bad(format!(
+                "a local voxel of {:.3e} {unit} is above the target's largest side ({:.3e}): \
+                 the local part would be one cell about the whole target; use a voxel of at \
+                 most {:.3e}",
+                voxel * to,
+                to,
+                to
             )));
         }
         let plan = LocalGrid::planned(target, voxel, self.band);
@@ -912,6 +924,31 @@ mod tests {
             .unwrap()
             .unwrap();
         assert_eq!(kept.len(), corrections);
+        // A voxel larger than the target (largest side 1 in the unit frame): refused, in the
+        // unit it was asked in; the whole side is accepted.
+        let coarse = |voxel: f64, voxel_size: Option<f64>| LocalSettings {
+            voxel: Some(voxel),
+            voxel_size,
+            ..local(128, 1024.0)
+        };
+        let err = coarse(1.5, None)
+            .grid(&square, spacing)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("local voxel of 1.500e0 of the target's largest side is above"),
+            "{err}"
+        );
+        let err = coarse(1.5, Some(3.0))
+            .grid(&square, spacing)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("invalid setting `fit.local.voxel_size`: a local voxel of 3.000e0 in the target's units")
+                && err.contains("at most 2.000e0"),
+            "{err}"
+        );
+        assert!(coarse(1.0, None).grid(&square, spacing).unwrap().is_some());
         // A global model has no grid to refuse.
         let global = LocalSettings {
             kind: ModelKind::Global,
