@@ -327,6 +327,23 @@ fn bad_input_is_a_typed_error() {
             ..
         })
     ));
+    // Sizes 10¹² apart (a cloud in other units by a factor no scale search spans): refused
+    // naming the cloud and both sizes, whichever is larger.
+    for (source_factor, target_factor) in [(1e12, 1.0), (1.0, 1e12)] {
+        let scaled = |f: f64| good.iter().map(|p| p * f).collect::<Vec<_>>();
+        let err = register(&scaled(source_factor), &scaled(target_factor), None, &s).unwrap_err();
+        let factor = source_factor / target_factor;
+        assert!(
+            matches!(err, Error::ScalesApart { role: Role::Source, extent, other_extent }
+                if (extent / other_extent / factor - 1.0).abs() < 1e-9),
+            "{err}"
+        );
+        let side = if factor > 1.0 { "above" } else { "below" };
+        assert!(
+            err.to_string().contains(&format!("is {side} the target's")),
+            "{err}"
+        );
+    }
     let mut bad = s.clone();
     bad.mlp.width = 0;
     assert!(matches!(

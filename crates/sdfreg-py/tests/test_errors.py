@@ -43,6 +43,7 @@ def with_row(cloud: np.ndarray, row: int, value: float) -> np.ndarray:
             r"source cloud has 8 points besides 40 missing returns at exactly \(0, 0, 0\); at least 10",
         ),
         (lambda c: np.ones((50, 3)), "source cloud has no extent"),
+        (lambda c: c * 1e12, r"source cloud's largest side, .*, is above the target's .* same units\?"),
     ],
 )
 def test_bad_source_raises_value_error(cloud, make, message) -> None:
@@ -55,6 +56,8 @@ def test_bad_target_is_named(cloud) -> None:
         sdfreg.register(cloud, with_row(cloud, 2, np.nan))
     with pytest.raises(ValueError, match=r"target: expected an \(N, 3\) array"):
         sdfreg.register(cloud, cloud.T)
+    with pytest.raises(ValueError, match=r"source cloud's largest side, .*, is below the target's"):
+        sdfreg.register(cloud, cloud * 1e12)
 
 
 @pytest.mark.parametrize(

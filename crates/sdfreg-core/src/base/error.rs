@@ -11,6 +11,16 @@ pub enum Role {
     Target,
 }
 
+impl Role {
+    /// The other cloud.
+    pub fn other(self) -> Role {
+        match self {
+            Role::Source => Role::Target,
+            Role::Target => Role::Source,
+        }
+    }
+}
+
 impl std::fmt::Display for Role {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
@@ -61,12 +71,29 @@ pub enum Error {
         point: [f64; 3],
     },
     /// All points (nearly) coincide: there is no shape to register against.
-    #[error("{role} cloud has no extent: its bounding box's largest side is {extent}")]
+    #[error("{role} cloud has no extent: its bounding box's largest side is {extent:.3e}")]
     NoExtent {
         /// The cloud.
         role: Role,
         /// Largest bounding-box side, in the cloud's units.
         extent: f64,
+    },
+    /// The two clouds' sizes are more than 10⁹ apart: most likely they are in different units.
+    /// (A far smaller source is a point in the target's 32-bit unit frame; a far larger one
+    /// lies out of every field the target gives.)
+    #[error(
+        "{role} cloud's largest side, {extent:.3e}, is {} the {}'s ({other_extent:.3e}), by a \
+         factor above 1e9; are the two in the same units?",
+        if .extent < .other_extent { "below" } else { "above" },
+        .role.other()
+    )]
+    ScalesApart {
+        /// The small cloud.
+        role: Role,
+        /// Its largest bounding-box side, in its units.
+        extent: f64,
+        /// The other cloud's largest bounding-box side, in its units.
+        other_extent: f64,
     },
     /// A setting is out of its valid range.
     #[error("invalid setting `{name}`: {reason}")]
@@ -97,10 +124,7 @@ impl Error {
     /// The error with source and target exchanged: for a registration run the other way round
     /// ([`crate::RegisterSettings::swap_ratio`]), said of the clouds as the caller gave them.
     pub(crate) fn with_roles_swapped(self) -> Self {
-        let other = |role| match role {
-            Role::Source => Role::Target,
-            Role::Target => Role::Source,
-        };
+        let other = Role::other;
         match self {
             Error::TooFewPoints { role, found, min } => Error::TooFewPoints {
                 role: other(role),
@@ -127,6 +151,15 @@ impl Error {
                 role: other(role),
                 extent,
             },
+            Error::ScalesApart {
+                role,
+                extent,
+                other_extent,
+            } => Error::ScalesApart {
+                role: other(role),
+                extent,
+                other_extent,
+            },
             e => e,
         }
     }
@@ -137,7 +170,8 @@ impl Error {
             Error::TooFewPoints { role, .. }
             | Error::TooFewBesidesMissingReturns { role, .. }
             | Error::NonFinite { role, .. }
-            | Error::NoExtent { role, .. } => Some(*role),
+            | Error::NoExtent { role, .. }
+            | Error::ScalesApart { role, .. } => Some(*role),
             Error::InvalidMesh(_) => Some(Role::Target),
             _ => None,
         }

@@ -499,14 +499,29 @@ fn polish_points(
 }
 
 /// Stage 1 for the source: the (subsampled) source in the target's unit frame; a source with no
-/// extent there is refused. (The target's part is [`SdfModel::fit`]'s.)
-fn in_unit_frame(norm: &Normalization, source: &[Point3<f64>]) -> Result<Unit, Error> {
-    let source: Vec<Point3<f64>> = source.iter().map(|p| norm.to_unit_f64(p)).collect();
+/// extent there, or more than 10⁹ times the target's, is refused ([`Error::NoExtent`] for a
+/// point, else [`Error::ScalesApart`]). (The target's part is [`SdfModel::fit`]'s.)
+fn in_unit_frame(norm: &Normalization, source_points: &[Point3<f64>]) -> Result<Unit, Error> {
+    let source: Vec<Point3<f64>> = source_points.iter().map(|p| norm.to_unit_f64(p)).collect();
     let (lo, hi) = crate::geometry::cloud::bounding_box(&source).expect("validated non-empty");
-    if (hi - lo).max() < 1e-9 {
-        return Err(Error::NoExtent {
-            role: Role::Source,
-            extent: (hi - lo).max() * norm.scale,
+    let unit_extent = (hi - lo).max();
+    if !(1e-9..=1e9).contains(&unit_extent) {
+        // Its own size: a cloud of one point, or one whose size the target's unit frame
+        // swallows (the centre's subtraction) or blows up.
+        let (lo, hi) = crate::geometry::cloud::bounding_box(source_points).expect("non-empty");
+        let extent = (hi - lo).max();
+        let a_point = extent <= 1e-9 * (1.0 + lo.coords.amax().max(hi.coords.amax()));
+        return Err(if a_point {
+            Error::NoExtent {
+                role: Role::Source,
+                extent,
+            }
+        } else {
+            Error::ScalesApart {
+                role: Role::Source,
+                extent,
+                other_extent: norm.scale,
+            }
         });
     }
     Ok(Unit {
