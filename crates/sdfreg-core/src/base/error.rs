@@ -30,6 +30,16 @@ impl std::fmt::Display for Role {
     }
 }
 
+/// A size in an error: `0`, else four significant digits in exponent form (`1.995e-300`, not
+/// 300 decimals).
+fn size(v: f64) -> String {
+    if v == 0.0 {
+        "0".into()
+    } else {
+        format!("{v:.3e}")
+    }
+}
+
 /// Why a registration could not be run.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -71,7 +81,7 @@ pub enum Error {
         point: [f64; 3],
     },
     /// All points (nearly) coincide: there is no shape to register against.
-    #[error("{role} cloud has no extent: its bounding box's largest side is {extent:.3e}")]
+    #[error("{role} cloud has no extent: its bounding box's largest side is {}", size(*.extent))]
     NoExtent {
         /// The cloud.
         role: Role,
@@ -82,10 +92,12 @@ pub enum Error {
     /// (A far smaller source is a point in the target's 32-bit unit frame; a far larger one
     /// lies out of every field the target gives.)
     #[error(
-        "{role} cloud's largest side, {extent:.3e}, is {} the {}'s ({other_extent:.3e}), by a \
-         factor above 1e9; are the two in the same units?",
+        "{role} cloud's largest side, {}, is {} the {}'s ({}), by a factor above 1e9; are the \
+         two in the same units?",
+        size(*.extent),
         if .extent < .other_extent { "below" } else { "above" },
-        .role.other()
+        .role.other(),
+        size(*.other_extent)
     )]
     ScalesApart {
         /// The small cloud.
