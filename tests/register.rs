@@ -51,6 +51,32 @@ fn recovers_a_40_degree_motion_of_a_blob() {
 }
 
 #[test]
+fn a_stray_point_in_either_cloud_is_left_out_and_changes_nothing() {
+    // One return 500 times the blob's size off each cloud: left out, the result is the clean
+    // clouds' to the bit (kept, it made the target's unit frame 500 times too large).
+    let target = blob(1024, 1);
+    let m = motion(40.0, [0.3, -0.2, 0.25]);
+    let source = moved(&target, &m);
+    let clean = register(&source, &target, None, &quick()).unwrap();
+    let with_stray = |cloud: &[Point3<f64>], at: usize| {
+        let mut c = cloud.to_vec();
+        c.insert(at, Point3::new(500.0, -300.0, 20.0));
+        c
+    };
+    let r = register(
+        &with_stray(&source, 5),
+        &with_stray(&target, 700),
+        None,
+        &quick(),
+    )
+    .unwrap();
+    assert_eq!(r.t_target_source, clean.t_target_source);
+    assert_eq!(r.fitness, clean.fitness);
+    let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
+    assert!(rot < 1.0 && tr < 0.01, "{rot}° {tr}");
+}
+
+#[test]
 fn the_polish_lays_a_copy_exactly_onto_its_points_and_can_be_turned_off() {
     // The source is the target's own sample, moved: exact counterparts exist.
     let target = blob(1024, 6);

@@ -228,6 +228,17 @@ fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f6
             points.len()
         );
     }
+    use sdfreg_core::geometry::cloud::{stray_points, without_missing_returns, STRAY_FACTOR};
+    let stray = stray_points(&without_missing_returns(&points));
+    if !stray.is_empty() {
+        eprintln!(
+            "sdfreg: {}: {} of {} points lie more than {STRAY_FACTOR} times as far from the \
+             cloud's middle as 99 % of them, stray returns: left out",
+            path.display(),
+            stray.len(),
+            points.len()
+        );
+    }
     Ok(points)
 }
 

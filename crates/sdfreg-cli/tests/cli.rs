@@ -372,6 +372,23 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         "{err}"
     );
     assert_eq!(out.stdout, clean.stdout);
+    // And a stray return far off the cloud, among them: left out too, said so, the same matrix.
+    let mut text = std::fs::read_to_string(dir.path().join("zeros.xyz")).unwrap();
+    text.push_str("400 -300 2000\n");
+    std::fs::write(dir.path().join("stray.xyz"), text).unwrap();
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("stray.xyz"))
+        .arg(&tgt)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("stray.xyz: 1 of 841 points lie more than 30 times as far from the cloud's middle as 99 % of them, stray returns: left out"),
+        "{err}"
+    );
+    assert_eq!(out.stdout, clean.stdout);
 }
 
 #[test]

@@ -51,6 +51,16 @@ def test_bad_source_raises_value_error(cloud, make, message) -> None:
         sdfreg.register(make(cloud), cloud)
 
 
+def test_a_stray_point_is_left_out(cloud) -> None:
+    """One point 1000 times the cloud's size off the target: left out, the same answer."""
+    stray = np.vstack([cloud, [[1000.0, 0.0, 0.0]]])
+    moved = cloud @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T
+    clean = sdfreg.register(moved, cloud)
+    r = sdfreg.register(moved, stray)
+    np.testing.assert_array_equal(r.transformation, clean.transformation)
+    assert r.fitness == clean.fitness
+
+
 def test_bad_target_is_named(cloud) -> None:
     with pytest.raises(ValueError, match="target cloud: point 2 has a non-finite"):
         sdfreg.register(cloud, with_row(cloud, 2, np.nan))
