@@ -210,23 +210,30 @@ pub struct Normalization {
     pub scale: f64,
 }
 
+/// The bounding-box centre and largest side of `points` (the `role` cloud); an
+/// [`Error::NoExtent`] when that side is not above 10⁻⁹ of the coordinates' magnitude (a cloud
+/// 1e-9 wide at 1e6 is a single point), [`Error::TooFewPoints`] when there are none.
+pub(crate) fn centre_and_extent(
+    points: &[Point3<f64>],
+    role: Role,
+) -> Result<(Vector3<f64>, f64), Error> {
+    let (lo, hi) = bounding_box(points).ok_or(Error::TooFewPoints {
+        role,
+        found: 0,
+        min: 1,
+    })?;
+    let extent = (hi - lo).max();
+    let centre = (lo.coords + hi.coords) * 0.5;
+    if extent.is_nan() || extent <= 1e-9 * (1.0 + centre.amax()) {
+        return Err(Error::NoExtent { role, extent });
+    }
+    Ok((centre, extent))
+}
+
 impl Normalization {
     /// The normalisation defined by the target cloud.
     pub fn from_target(target: &[Point3<f64>]) -> Result<Self, Error> {
-        let (lo, hi) = bounding_box(target).ok_or(Error::TooFewPoints {
-            role: Role::Target,
-            found: 0,
-            min: 1,
-        })?;
-        let scale = (hi - lo).max();
-        let centre = (lo.coords + hi.coords) * 0.5;
-        // Relative to the coordinates' magnitude: a cloud 1e-9 wide at 1e6 is a single point.
-        if scale.is_nan() || scale <= 1e-9 * (1.0 + centre.amax()) {
-            return Err(Error::NoExtent {
-                role: Role::Target,
-                extent: scale,
-            });
-        }
+        let (centre, scale) = centre_and_extent(target, Role::Target)?;
         Ok(Self { centre, scale })
     }
 

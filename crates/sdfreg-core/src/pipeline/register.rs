@@ -506,22 +506,13 @@ fn in_unit_frame(norm: &Normalization, source_points: &[Point3<f64>]) -> Result<
     let (lo, hi) = crate::geometry::cloud::bounding_box(&source).expect("validated non-empty");
     let unit_extent = (hi - lo).max();
     if !(1e-9..=1e9).contains(&unit_extent) {
-        // Its own size: a cloud of one point, or one whose size the target's unit frame
-        // swallows (the centre's subtraction) or blows up.
-        let (lo, hi) = crate::geometry::cloud::bounding_box(source_points).expect("non-empty");
-        let extent = (hi - lo).max();
-        let a_point = extent <= 1e-9 * (1.0 + lo.coords.amax().max(hi.coords.amax()));
-        return Err(if a_point {
-            Error::NoExtent {
-                role: Role::Source,
-                extent,
-            }
-        } else {
-            Error::ScalesApart {
-                role: Role::Source,
-                extent,
-                other_extent: norm.scale,
-            }
+        // Its own size: a cloud of one point (refused as the target would be), or one whose
+        // size the target's unit frame swallows (the centre's subtraction) or blows up.
+        let (_, extent) = crate::geometry::cloud::centre_and_extent(source_points, Role::Source)?;
+        return Err(Error::ScalesApart {
+            role: Role::Source,
+            extent,
+            other_extent: norm.scale,
         });
     }
     Ok(Unit {
