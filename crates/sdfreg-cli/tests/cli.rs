@@ -348,47 +348,30 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         let (rot, tr) = pose_errors(&isometry_from_matrix(&m).unwrap(), &truth);
         assert!(rot < 1.0 && tr < 0.01, "{source}: {rot}°, {tr}");
     }
-    // Missing returns written as (0, 0, 0), as spinning LiDARs write them: left out, said so,
-    // and the same matrix as without them.
-    let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
-    let clean = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("src.xyz"))
-        .arg(&tgt)
-        .output()
-        .unwrap();
-    text.push_str(&"0 0 0\n".repeat(40));
-    std::fs::write(dir.path().join("zeros.xyz"), text).unwrap();
-    let out = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("zeros.xyz"))
-        .arg(&tgt)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    assert!(
-        err.contains("zeros.xyz: 40 of 840 points are at exactly (0, 0, 0), a scanner's missing returns: left out"),
-        "{err}"
-    );
-    assert_eq!(out.stdout, clean.stdout);
-    // And a stray return far off the cloud, among them: left out too, said so, the same matrix.
-    let mut text = std::fs::read_to_string(dir.path().join("zeros.xyz")).unwrap();
-    text.push_str("400 -300 2000\n");
-    std::fs::write(dir.path().join("stray.xyz"), text).unwrap();
-    let out = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("stray.xyz"))
-        .arg(&tgt)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
-    assert!(
-        err.contains("stray.xyz: 1 of 841 points lie more than 30 times as far from the cloud's middle as 99 % of them, stray returns: left out"),
-        "{err}"
-    );
-    assert_eq!(out.stdout, clean.stdout);
+    // Missing returns written as (0, 0, 0), as spinning LiDARs write them, then a stray return
+    // far off the cloud among them: each left out, said so, and the same matrix as without them.
+    let register = |name: &str| {
+        sdfreg()
+            .arg("register")
+            .arg(dir.path().join(name))
+            .arg(&tgt)
+            .output()
+            .unwrap()
+    };
+    let clean = register("src.xyz");
+    for (from, added, name, says) in [
+        ("src.xyz", "0 0 0\n".repeat(40), "zeros.xyz", "zeros.xyz: 40 of 840 points are at exactly (0, 0, 0), a scanner's missing returns: left out"),
+        ("zeros.xyz", "400 -300 2000\n".into(), "stray.xyz", "stray.xyz: 1 of 841 points lie more than 30 times as far from the cloud's middle as 99 % of them, stray returns: left out"),
+    ] {
+        let mut text = std::fs::read_to_string(dir.path().join(from)).unwrap();
+        text.push_str(&added);
+        std::fs::write(dir.path().join(name), text).unwrap();
+        let out = register(name);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{name}: {err}");
+        assert!(err.contains(says), "{err}");
+        assert_eq!(out.stdout, clean.stdout, "{name}");
+    }
 }
 
 #[test]
