@@ -3,6 +3,7 @@
 use nalgebra::Point3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use sdfreg_core::geometry::cloud::LeftOut;
 use sdfreg_core::geometry::se3::pose_errors;
 use sdfreg_core::sim::shapes;
 use sdfreg_core::{
@@ -52,8 +53,9 @@ fn recovers_a_40_degree_motion_of_a_blob() {
 
 #[test]
 fn a_stray_point_in_either_cloud_is_left_out_and_changes_nothing() {
-    // One return 500 times the blob's size off each cloud: left out, the result is the clean
-    // clouds' to the bit (kept, it made the target's unit frame 500 times too large).
+    // One return 500 times the blob's size off each cloud, and three missing returns at the
+    // origin in the source: left out and counted, the result is the clean clouds' to the bit
+    // (kept, the stray return made the target's unit frame 500 times too large).
     let target = blob(1024, 1);
     let m = motion(40.0, [0.3, -0.2, 0.25]);
     let source = moved(&target, &m);
@@ -63,15 +65,17 @@ fn a_stray_point_in_either_cloud_is_left_out_and_changes_nothing() {
         c.insert(at, Point3::new(500.0, -300.0, 20.0));
         c
     };
-    let r = register(
-        &with_stray(&source, 5),
-        &with_stray(&target, 700),
-        None,
-        &quick(),
-    )
-    .unwrap();
+    let mut source_left = with_stray(&source, 5);
+    source_left.extend([Point3::origin(); 3]);
+    let r = register(&source_left, &with_stray(&target, 700), None, &quick()).unwrap();
     assert_eq!(r.t_target_source, clean.t_target_source);
     assert_eq!(r.fitness, clean.fitness);
+    let counts = |l: LeftOut| (l.missing_returns, l.stray);
+    assert_eq!(counts(clean.source_left_out), (0, 0));
+    assert_eq!(counts(clean.target_left_out), (0, 0));
+    assert_eq!(counts(r.source_left_out), (3, 1));
+    assert_eq!(counts(r.target_left_out), (0, 1));
+    assert_eq!(r.source_left_out, LeftOut::of(&source_left));
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
     assert!(rot < 1.0 && tr < 0.01, "{rot}° {tr}");
 }

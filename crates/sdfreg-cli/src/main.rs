@@ -219,25 +219,9 @@ fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f6
     } else {
         read_point_cloud(path)?
     };
-    let missing = sdfreg_core::geometry::cloud::missing_returns(&points);
-    if missing > 0 {
-        eprintln!(
-            "sdfreg: {}: {missing} of {} points are at exactly (0, 0, 0), a scanner's missing \
-             returns: left out",
-            path.display(),
-            points.len()
-        );
-    }
-    use sdfreg_core::geometry::cloud::{stray_points, without_missing_returns, STRAY_FACTOR};
-    let stray = stray_points(&without_missing_returns(&points));
-    if !stray.is_empty() {
-        eprintln!(
-            "sdfreg: {}: {} of {} points lie more than {STRAY_FACTOR} times as far from the \
-             cloud's middle as 99 % of them, stray returns: left out",
-            path.display(),
-            stray.len(),
-            points.len()
-        );
+    let left_out = sdfreg_core::geometry::cloud::LeftOut::of(&points);
+    for message in left_out.messages(points.len()) {
+        eprintln!("sdfreg: {}: {message}", path.display());
     }
     Ok(points)
 }

@@ -52,6 +52,7 @@ pub fn registration_json(r: &Registration) -> serde_json::Value {
         "stages": r.stages,
         "time_ms": r.time.as_secs_f64() * 1e3,
         "stage_ms": stage_ms(r),
+        "points_left_out": {"source": r.source_left_out, "target": r.target_left_out},
     });
     if let Some(info) = &r.similarity_information {
         json["scale"] = r.scale.into();

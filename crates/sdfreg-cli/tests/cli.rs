@@ -372,6 +372,24 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         assert!(err.contains(says), "{err}");
         assert_eq!(out.stdout, clean.stdout, "{name}");
     }
+    // The JSON result counts them.
+    let json = dir.path().join("stray.json");
+    let out = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("stray.xyz"))
+        .arg(&tgt)
+        .arg("--output")
+        .arg(&json)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(
+        r["points_left_out"],
+        serde_json::json!({"source": {"missing_returns": 40, "stray": 1},
+                           "target": {"missing_returns": 0, "stray": 0}})
+    );
 }
 
 #[test]

@@ -6,6 +6,7 @@ use numpy::PyArray2;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
+use sdfreg_core::geometry::cloud::LeftOut;
 use sdfreg_core::views::poses_file;
 
 use crate::convert;
@@ -59,6 +60,10 @@ use crate::settings::{Caller, SettingsArgs};
 ///     ValueError: fewer than two scans can be used, a scan is not an (N, 3) float array, the
 ///         anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
 ///         of range.
+///
+/// Warns:
+///     UserWarning: points were left out of a scan: missing returns at (0, 0, 0) or stray
+///         points, one warning per kind and scan (``scans[k]``) with how many.
 #[pyfunction]
 #[pyo3(signature = (scans, *, init = None, anchor = 0, closure_pairs = 2, joint_rounds = 0, consensus_iterations = 0, seen_from = None, max_in_free_space = 0.02, **settings))]
 #[allow(clippy::too_many_arguments)]
@@ -122,13 +127,17 @@ pub fn align<'py>(
         max_in_free_space,
         ..Default::default()
     };
-    let (alignment, model) = py
+    let (alignment, model, left_out) = py
         .detach(|| {
             let a = sdfreg_core::align(&scans, init.as_deref(), &s)?;
             let model = a.merged_model(&scans, &s.register)?;
-            Ok::<_, sdfreg_core::Error>((a, model))
+            let left_out: Vec<_> = scans.iter().map(|scan| LeftOut::of(scan)).collect();
+            Ok::<_, sdfreg_core::Error>((a, model, left_out))
         })
         .map_err(error::registration)?;
+    for (k, (scan, left_out)) in scans.iter().zip(&left_out).enumerate() {
+        error::warn_left_out(py, &format!("scans[{k}]"), scan.len(), left_out)?;
+    }
     Ok(PyAlignment {
         alignment,
         model: Arc::new(model),

@@ -1,4 +1,4 @@
-//! Every mapping of a core error to a Python exception, in one place.
+//! Every mapping of a core error to a Python exception, and every warning, in one place.
 //!
 //! - bad arrays, settings and initial guesses → `ValueError` (the core names the cloud and the
 //!   point, e.g. "source cloud: point 17 has a non-finite coordinate");
@@ -37,4 +37,24 @@ pub fn io(e: IoError) -> PyErr {
 /// A `ValueError` about the argument `name`.
 pub fn argument(name: &str, what: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(format!("{name}: {what}"))
+}
+
+/// A `UserWarning` with `message`, attributed to the caller of the binding's function.
+pub fn warn(py: pyo3::Python<'_>, message: String) -> pyo3::PyResult<()> {
+    let warning = py.get_type::<pyo3::exceptions::PyUserWarning>();
+    PyErr::warn(py, &warning, &std::ffi::CString::new(message)?, 1)
+}
+
+/// One `UserWarning` per kind of point left out of the argument `name` (`total` points): "source:
+/// 5 of 800 points are at exactly (0, 0, 0), a scanner's missing returns: left out".
+pub fn warn_left_out(
+    py: pyo3::Python<'_>,
+    name: &str,
+    total: usize,
+    left_out: &sdfreg_core::geometry::cloud::LeftOut,
+) -> pyo3::PyResult<()> {
+    for message in left_out.messages(total) {
+        warn(py, format!("{name}: {message}"))?;
+    }
+    Ok(())
 }

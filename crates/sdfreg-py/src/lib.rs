@@ -111,6 +111,9 @@ use settings::{
 ///         than ``LocalSettings.global_rerun_below_fitness`` of the source (a full call would
 ///         run again with a global Φ): scans that overlap only in part register more reliably
 ///         against a model fitted with ``model="global"``.
+///     UserWarning: points were left out of ``source`` or a cloud ``target``: missing returns
+///         at (0, 0, 0) or stray points, one warning per kind and cloud with how many
+///         (:attr:`Registration.points_left_out` holds the counts).
 #[pyfunction]
 #[pyo3(signature = (source, target, *, init = None, refine = None, **settings))]
 fn register<'py>(
@@ -161,9 +164,12 @@ fn register<'py>(
                 "the source fits {:.3} of a local (scene) model; scans that overlap only in part register more reliably against a global one (sdfreg.fit(target, model=\"global\"))",
                 result.fitness
             );
-            let warning = py.get_type::<pyo3::exceptions::PyUserWarning>();
-            PyErr::warn(py, &warning, &std::ffi::CString::new(message)?, 1)?;
+            error::warn(py, message)?;
         }
+    }
+    error::warn_left_out(py, "source", source.len(), &result.source_left_out)?;
+    if let Target::Cloud(points) = &target {
+        error::warn_left_out(py, "target", points.len(), &result.target_left_out)?;
     }
     Ok(PyRegistration(result))
 }
@@ -244,8 +250,7 @@ fn read_point_cloud(
             path.display(),
             points.len() + dropped
         );
-        let warning = py.get_type::<pyo3::exceptions::PyUserWarning>();
-        PyErr::warn(py, &warning, &std::ffi::CString::new(message)?, 1)?;
+        error::warn(py, message)?;
     }
     Ok(convert::points_to_array(py, &points))
 }

@@ -10,6 +10,7 @@ use std::sync::Arc;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
+use sdfreg_core::geometry::cloud::LeftOut;
 use sdfreg_core::SdfModel;
 
 use crate::convert;
@@ -47,6 +48,10 @@ pub struct PySdfModel(pub Arc<SdfModel>);
 /// Raises:
 ///     ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
 ///         fewer than 10 points or no extent; a setting is out of range.
+///
+/// Warns:
+///     UserWarning: points were left out of ``target``: missing returns at (0, 0, 0) or stray
+///         points, one warning per kind with how many.
 #[pyfunction]
 #[pyo3(signature = (target, **settings))]
 pub fn fit<'py>(
@@ -56,9 +61,13 @@ pub fn fit<'py>(
 ) -> PyResult<PySdfModel> {
     let target = convert::points(target, "target")?;
     let s = SettingsArgs::from_kwargs(Caller::Fit, settings)?.build("default")?;
-    let model = py
-        .detach(|| SdfModel::fit(&target, &s))
+    let (model, left_out) = py
+        .detach(|| {
+            let model = SdfModel::fit(&target, &s)?;
+            Ok((model, LeftOut::of(&target)))
+        })
         .map_err(error::registration)?;
+    error::warn_left_out(py, "target", target.len(), &left_out)?;
     Ok(PySdfModel(Arc::new(model)))
 }
 
@@ -156,7 +165,8 @@ impl PySdfModel {
     /// ``init`` (4×4, frame into target; identity when None), each next one from the previous
     /// frame's pose, with the ``"tracking"`` preset (no multi-start, a few LM steps, a short
     /// polish) and these overrides. Returns one :class:`Registration` per frame, or the
-    /// ``ValueError`` of a frame that could not be registered, in its place.
+    /// ``ValueError`` of a frame that could not be registered, in its place. Points left out
+    /// of a frame are counted in its result's ``points_left_out``, without a warning.
     #[pyo3(signature = (frames, *, init = None, **settings))]
     fn track<'py>(
         &self,

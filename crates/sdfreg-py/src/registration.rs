@@ -154,6 +154,25 @@ impl PyRegistration {
         Ok(times)
     }
 
+    /// The points left out of each cloud before registering, as a dict: ``{"source":
+    /// {"missing_returns": n, "stray": m}, "target": {...}}`` (points at exactly (0, 0, 0), two
+    /// or more; stray points far off the rest). The target's are 0 against a model (its fit
+    /// left them out).
+    #[getter]
+    fn points_left_out<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let both = PyDict::new(py);
+        for (role, left_out) in [
+            ("source", &self.0.source_left_out),
+            ("target", &self.0.target_left_out),
+        ] {
+            let counts = PyDict::new(py);
+            counts.set_item("missing_returns", left_out.missing_returns)?;
+            counts.set_item("stray", left_out.stray)?;
+            both.set_item(role, counts)?;
+        }
+        Ok(both)
+    }
+
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
         let json = serde_json::to_string(&self.0)
             .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;

@@ -3,6 +3,8 @@ panics (a Rust panic would surface as pyo3's PanicException, which is no ValueEr
 
 from __future__ import annotations
 
+import pickle
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -52,13 +54,43 @@ def test_bad_source_raises_value_error(cloud, make, message) -> None:
 
 
 def test_a_stray_point_is_left_out(cloud) -> None:
-    """One point 1000 times the cloud's size off the target: left out, the same answer."""
+    """One point 1000 times the cloud's size off the target and three missing returns in the
+    source: left out, the same answer, each kind warned and counted."""
     stray = np.vstack([cloud, [[1000.0, 0.0, 0.0]]])
     moved = cloud @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T
+    with_missing = np.vstack([moved, np.zeros((3, 3))])
     clean = sdfreg.register(moved, cloud)
-    r = sdfreg.register(moved, stray)
+    assert clean.points_left_out == {
+        "source": {"missing_returns": 0, "stray": 0},
+        "target": {"missing_returns": 0, "stray": 0},
+    }
+    with pytest.warns(UserWarning) as warned:
+        r = sdfreg.register(with_missing, stray)
+    assert [str(w.message) for w in warned] == [
+        "source: 3 of 503 points are at exactly (0, 0, 0), a scanner's missing returns: left out",
+        "target: 1 of 501 points lie more than 30 times as far from the cloud's middle as 99 % "
+        "of them, stray returns: left out",
+    ]
     np.testing.assert_array_equal(r.transformation, clean.transformation)
     assert r.fitness == clean.fitness
+    assert r.points_left_out == {
+        "source": {"missing_returns": 3, "stray": 0},
+        "target": {"missing_returns": 0, "stray": 1},
+    }
+    assert pickle.loads(pickle.dumps(r)).points_left_out == r.points_left_out
+    # A model's fit warns of the target's; registering against it, of the source's only; a
+    # tracked frame's are counted without a warning.
+    with pytest.warns(UserWarning, match="target: 1 of 501 points lie more than 30 times"):
+        model = sdfreg.fit(stray)
+    with pytest.warns(UserWarning, match="source: 3 of 503 points are at exactly") as warned:
+        m = model.register(with_missing)
+    assert len(warned) == 1
+    assert m.points_left_out["source"] == {"missing_returns": 3, "stray": 0}
+    assert m.points_left_out["target"] == {"missing_returns": 0, "stray": 0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        (t,) = model.track([with_missing], init=m.transformation)
+    assert t.points_left_out["source"] == {"missing_returns": 3, "stray": 0}
 
 
 def test_bad_target_is_named(cloud) -> None:

@@ -140,15 +140,71 @@ pub fn stray_points(points: &[Point3<f64>]) -> Vec<usize> {
         .collect()
 }
 
+/// How many points of one cloud a registration or a fit left out before using it: its
+/// [`missing_returns`] and, of the rest, its [`stray_points`]. Reported on each result
+/// ([`crate::Registration::source_left_out`]) so that a caller can tell its users.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct LeftOut {
+    /// Points at exactly (0, 0, 0) ([`missing_returns`]; 0 when fewer than two).
+    pub missing_returns: usize,
+    /// Of the other points, those more than [`STRAY_FACTOR`] times as far from the cloud's
+    /// middle as 99 % of them ([`stray_points`]).
+    pub stray: usize,
+}
+
+impl LeftOut {
+    /// What a registration or a fit leaves out of `points` (one pass for the missing returns, one over a
+    /// sample and one over the rest for the strays).
+    pub fn of(points: &[Point3<f64>]) -> Self {
+        let kept = without_missing_returns(points);
+        Self {
+            missing_returns: points.len() - kept.len(),
+            stray: stray_points(&kept).len(),
+        }
+    }
+
+    /// Whether nothing was left out.
+    pub fn is_empty(&self) -> bool {
+        self.missing_returns == 0 && self.stray == 0
+    }
+
+    /// One sentence per kind of point left out of a cloud of `total` points (none when nothing
+    /// was), as the CLI prints them after the file's name and Python warns them after the
+    /// argument's: "5 of 800 points are at exactly (0, 0, 0), a scanner's missing returns:
+    /// left out".
+    pub fn messages(&self, total: usize) -> Vec<String> {
+        let mut messages = Vec::new();
+        if self.missing_returns > 0 {
+            messages.push(format!(
+                "{} of {total} points are at exactly (0, 0, 0), a scanner's missing returns: \
+                 left out",
+                self.missing_returns
+            ));
+        }
+        if self.stray > 0 {
+            messages.push(format!(
+                "{} of {total} points lie more than {STRAY_FACTOR} times as far from the \
+                 cloud's middle as 99 % of them, stray returns: left out",
+                self.stray
+            ));
+        }
+        messages
+    }
+}
+
+/// The points [`usable`] keeps (borrowed when it leaves none out) and how many it left out.
+pub(crate) type Usable<'a> = (std::borrow::Cow<'a, [Point3<f64>]>, LeftOut);
+
 /// `points` checked ([`validate`]: indices in errors are the caller's) and without their
-/// [`missing_returns`], which must leave at least `min`, and their [`stray_points`].
-pub(crate) fn usable(
-    points: &[Point3<f64>],
-    role: Role,
-    min: usize,
-) -> Result<std::borrow::Cow<'_, [Point3<f64>]>, Error> {
+/// [`missing_returns`], which must leave at least `min`, and their [`stray_points`]; with how
+/// many of each were left out.
+pub(crate) fn usable(points: &[Point3<f64>], role: Role, min: usize) -> Result<Usable<'_>, Error> {
     validate(points, role, min)?;
     let kept = without_missing_returns(points);
+    let mut left_out = LeftOut {
+        missing_returns: points.len() - kept.len(),
+        stray: 0,
+    };
     if kept.len() < min {
         return Err(Error::TooFewBesidesMissingReturns {
             role,
@@ -159,8 +215,9 @@ pub(crate) fn usable(
     }
     let stray = stray_points(&kept);
     if stray.is_empty() {
-        return Ok(kept);
+        return Ok((kept, left_out));
     }
+    left_out.stray = stray.len();
     let mut stray = stray.into_iter().peekable();
     let near: Vec<Point3<f64>> = kept
         .iter()
@@ -175,7 +232,7 @@ pub(crate) fn usable(
             min,
         });
     }
-    Ok(std::borrow::Cow::Owned(near))
+    Ok((std::borrow::Cow::Owned(near), left_out))
 }
 
 /// Checks that every coordinate is finite and that there are at least `min` points.
@@ -302,14 +359,28 @@ mod tests {
         points.insert(17, Point3::new(1.0, 0.5, 150.0 * 1.2));
         points.push(Point3::new(-20.0 * 1.2, 0.5, 0.25));
         assert_eq!(stray_points(&points), vec![17]);
-        let kept = usable(&points, Role::Target, 10).unwrap();
+        let (kept, left_out) = usable(&points, Role::Target, 10).unwrap();
         assert_eq!(kept.len(), 1001);
+        assert_eq!(left_out, LeftOut::of(&points));
+        assert_eq!(
+            left_out,
+            LeftOut {
+                missing_returns: 0,
+                stray: 1
+            }
+        );
         assert!(!kept.iter().any(|p| p.z > 10.0));
         // Clouds without strays come back borrowed, unchanged.
         points.remove(17);
         assert!(matches!(
             usable(&points, Role::Target, 10).unwrap(),
-            std::borrow::Cow::Borrowed(_)
+            (
+                std::borrow::Cow::Borrowed(_),
+                LeftOut {
+                    missing_returns: 0,
+                    stray: 0
+                }
+            )
         ));
         // A cloud whose points nearly all coincide has no strays to tell (refused as without
         // extent later).

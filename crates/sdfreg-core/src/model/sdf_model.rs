@@ -83,7 +83,7 @@ impl SdfModel {
         progress: &(dyn Fn(Stage) + Sync),
     ) -> Result<Self, Error> {
         settings.validate()?;
-        let target = usable(target, Role::Target, MIN_POINTS)?;
+        let (target, _) = usable(target, Role::Target, MIN_POINTS)?;
         crate::base::pool::in_pool(settings.threads, || {
             // The registration's random stream, as `register()` draws it, so that a refined
             // registration against the model keeps `register()`'s numbers (with the same

@@ -39,17 +39,20 @@ impl SdfModel {
                 .into_iter()
                 .map(|frame| {
                     let start = Instant::now();
-                    let r = usable(frame, Role::Source, MIN_POINTS).and_then(|frame| {
-                        against_in_pool(
-                            &self.norm,
-                            &frozen,
-                            &frame,
-                            Some(&last),
-                            settings,
-                            false,
-                            &|_| {},
-                        )
-                    });
+                    let r =
+                        usable(frame, Role::Source, MIN_POINTS).and_then(|(frame, left_out)| {
+                            let mut r = against_in_pool(
+                                &self.norm,
+                                &frozen,
+                                &frame,
+                                Some(&last),
+                                settings,
+                                false,
+                                &|_| {},
+                            )?;
+                            r.source_left_out = left_out;
+                            Ok(r)
+                        });
                     if let Ok(r) = &r {
                         last = r.t_target_source;
                     }

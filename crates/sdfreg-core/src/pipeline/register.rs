@@ -82,8 +82,8 @@ pub fn register_with_progress(
 ) -> Result<Registration, Error> {
     let start = Instant::now();
     check_settings(init, settings)?;
-    let source = usable(source, Role::Source, MIN_POINTS)?;
-    let target = usable(target, Role::Target, MIN_POINTS)?;
+    let (source, source_left_out) = usable(source, Role::Source, MIN_POINTS)?;
+    let (target, target_left_out) = usable(target, Role::Target, MIN_POINTS)?;
     let mut r = in_pool(settings.threads, || {
         // Stage 0: the denser cloud as the target ([`crate::pipeline::direction`]).
         if swaps(settings, &source, &target) {
@@ -95,6 +95,8 @@ pub fn register_with_progress(
         one_way(&source, &target, init, settings, progress)
     })??;
     r.time = start.elapsed();
+    r.source_left_out = source_left_out;
+    r.target_left_out = target_left_out;
     Ok(r)
 }
 
@@ -162,10 +164,12 @@ pub(crate) fn against<S: Surface>(
     progress: &(dyn Fn(Stage) + Sync),
 ) -> Result<Registration, Error> {
     check_settings(init, settings)?;
-    let source = usable(source, Role::Source, MIN_POINTS)?;
-    in_pool(settings.threads, || {
+    let (source, left_out) = usable(source, Role::Source, MIN_POINTS)?;
+    let mut r = in_pool(settings.threads, || {
         against_in_pool(norm, surface, &source, init, settings, refine, progress)
-    })?
+    })??;
+    r.source_left_out = left_out;
+    Ok(r)
 }
 
 /// [`against`] within the current pool, `settings` already checked.

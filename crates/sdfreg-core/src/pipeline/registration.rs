@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use nalgebra::{Isometry3, Matrix4, Matrix6, Point3, SMatrix, Similarity3};
 
-use crate::geometry::cloud::Normalization;
+use crate::geometry::cloud::{LeftOut, Normalization};
 use crate::pipeline::polish::PolishOutcome;
 use crate::pipeline::report::{
     CoarseToFineReport, FinalLmReport, GlobalRerunReport, InitialReport, PolishReport,
@@ -67,6 +67,14 @@ pub struct Registration {
     /// Wall time of each stage (results written before it existed read as zeros).
     #[serde(default)]
     pub stage_times: StageTimes,
+    /// The source's points left out before registering it: missing returns and stray points
+    /// ([`LeftOut`]).
+    #[serde(default)]
+    pub source_left_out: LeftOut,
+    /// The target's points left out before fitting Φ to it; all zero against a model (its
+    /// fit left them out: [`LeftOut::of`] the cloud it was fitted to tells how many).
+    #[serde(default)]
+    pub target_left_out: LeftOut,
 }
 
 fn unit_scale() -> f64 {
@@ -191,6 +199,8 @@ pub(crate) fn measure<S: Surface>(
             measure: start.elapsed(),
             ..t.times
         },
+        source_left_out: LeftOut::default(),
+        target_left_out: LeftOut::default(),
     }
 }
 

@@ -553,6 +553,12 @@ class Registration:
         target; 0 against a model), ``initial``, ``coarse_to_fine``, ``final_lm``, ``polish``,
         ``shift_search``, ``measure`` and ``other_run`` (the robust re-run's run that was not
         returned; 0 when none ran)."""
+    @property
+    def points_left_out(self) -> Dict[str, Dict[str, int]]:
+        """The points left out of each cloud before registering, as a dict: ``{"source":
+        {"missing_returns": n, "stray": m}, "target": {...}}`` (points at exactly (0, 0, 0), two
+        or more; stray points far off the rest). The target's are 0 against a model (its fit
+        left them out)."""
     def __reduce__(self) -> Any: ...
 
 
@@ -699,6 +705,9 @@ def register(
             than ``LocalSettings.global_rerun_below_fitness`` of the source (a full call would
             run again with a global Φ): scans that overlap only in part register more reliably
             against a model fitted with ``model="global"``.
+        UserWarning: points were left out of ``source`` or a cloud ``target``: missing returns
+            at (0, 0, 0) or stray points, one warning per kind and cloud with how many
+            (:attr:`Registration.points_left_out` holds the counts).
     """
 
 def align(
@@ -757,6 +766,10 @@ def align(
         ValueError: fewer than two scans can be used, a scan is not an (N, 3) float array, the
             anchor names no scan, ``init`` has not one rigid 4×4 per scan, or a setting is out
             of range.
+
+    Warns:
+        UserWarning: points were left out of a scan: missing returns at (0, 0, 0) or stray
+            points, one warning per kind and scan (``scans[k]``) with how many.
     """
 
 @final
@@ -909,7 +922,8 @@ class SdfModel:
         ``init`` (4×4, frame into target; identity when None), each next one from the previous
         frame's pose, with the ``"tracking"`` preset (no multi-start, a few LM steps, a short
         polish) and these overrides. Returns one :class:`Registration` per frame, or the
-        ``ValueError`` of a frame that could not be registered, in its place."""
+        ``ValueError`` of a frame that could not be registered, in its place. Points left out
+        of a frame are counted in its result's ``points_left_out``, without a warning."""
     @property
     def target_points(self) -> npt.NDArray[np.float64]:
         """The target points Φ was fitted to (subsampled), (M, 3), the target's units and frame."""
@@ -965,6 +979,10 @@ def fit(
     Raises:
         ValueError: ``target`` is not an (N, 3) float array, has a NaN or infinite coordinate,
             fewer than 10 points or no extent; a setting is out of range.
+
+    Warns:
+        UserWarning: points were left out of ``target``: missing returns at (0, 0, 0) or stray
+            points, one warning per kind with how many.
     """
 
 def load_model(path: _PathLike) -> SdfModel:
