@@ -308,7 +308,9 @@ fn read_pairs(path: &Path, default_seed: u64) -> Result<Vec<Row>> {
         {
             continue;
         }
-        if record.iter().all(str::is_empty) {
+        // A line of blanks (one empty field once trimmed) is skipped; a row of empty fields
+        // (`,`) is a row without its source and target, refused below.
+        if record.len() == 1 && record[0].is_empty() {
             continue;
         }
         if !(2..=4).contains(&record.len()) {

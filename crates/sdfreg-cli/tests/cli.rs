@@ -860,6 +860,15 @@ fn batch_registers_each_row_as_register_does_records_failures_and_resumes() {
         err.contains("pairs.csv:2: expected 2 to 4 fields (source,target[,init[,seed]]), found 5"),
         "{err}"
     );
+    // A line of blanks is skipped; a row of empty fields is refused by line.
+    std::fs::write(d.join("pairs.csv"), "src.xyz,tgt.ply\n   \n , \n").unwrap();
+    let out = batch_cmd(d, &["--force"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("pairs.csv:3: the source and the target must both be given"),
+        "{err}"
+    );
 }
 
 #[test]
