@@ -102,6 +102,7 @@ pub use batch::pairs::{register_each, register_many, Pair, PairTarget};
 pub use field::local_grid::{LocalSettings, ModelKind};
 pub use field::mlp::MlpSettings;
 pub use fit::settings::FitSettings;
+pub use geometry::cloud::LeftOut;
 pub use model::mesh_model::MeshModel;
 pub use model::sdf_model::SdfModel;
 pub use pipeline::coarse_to_fine::CoarseToFineSettings;
