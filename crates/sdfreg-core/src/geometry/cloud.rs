@@ -153,8 +153,8 @@ pub struct LeftOut {
 }
 
 impl LeftOut {
-    /// What a registration or a fit leaves out of `points` (one pass for the missing returns, one over a
-    /// sample and one over the rest for the strays).
+    /// What a registration or a fit leaves out of `points` (one pass for the missing returns,
+    /// one over a sample and one over the rest for the strays).
     pub fn of(points: &[Point3<f64>]) -> Self {
         let kept = without_missing_returns(points);
         Self {
