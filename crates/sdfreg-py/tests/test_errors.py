@@ -3,6 +3,7 @@ panics (a Rust panic would surface as pyo3's PanicException, which is no ValueEr
 
 from __future__ import annotations
 
+import json
 import pickle
 import warnings
 from pathlib import Path
@@ -78,6 +79,10 @@ def test_a_stray_point_is_left_out(cloud) -> None:
         "target": {"missing_returns": 0, "stray": 1},
     }
     assert pickle.loads(pickle.dumps(r)).points_left_out == r.points_left_out
+    # A registration pickled before the counts existed reads them as zero.
+    restore, (text,) = r.__reduce__()
+    older = {k: v for k, v in json.loads(text).items() if not k.endswith("_left_out")}
+    assert restore(json.dumps(older)).points_left_out == clean.points_left_out
     # A model's fit warns of the target's; registering against it, of the source's only; a
     # tracked frame's are counted without a warning.
     with pytest.warns(UserWarning, match="target: 1 of 501 points lie more than 30 times"):
