@@ -1,13 +1,14 @@
 //! End-to-end registration: accuracy in degrees and units, frames, determinism, bad input.
 
 use nalgebra::Point3;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use sdfreg_core::geometry::cloud::LeftOut;
 use sdfreg_core::geometry::se3::pose_errors;
 use sdfreg_core::sim::shapes;
 use sdfreg_core::{
-    register, Error, MotionKind, PolishResult, RegisterSettings, RobustMode, RobustReport, Role,
+    evaluate_registration, register, Error, MotionKind, PolishResult, RegisterSettings, RobustMode,
+    RobustReport, Role,
 };
 
 use crate::common::{motion, moved, partial_scans_quick, quick};
@@ -78,6 +79,41 @@ fn a_stray_point_in_either_cloud_is_left_out_and_changes_nothing() {
     assert_eq!(r.source_left_out, LeftOut::of(&source_left));
     let (rot, tr) = pose_errors(&r.t_target_source, &m.inverse());
     assert!(rot < 1.0 && tr < 0.01, "{rot}° {tr}");
+}
+
+#[test]
+fn evaluating_a_result_at_its_own_inlier_distance_gives_its_fitness() {
+    // A partial, noisy source (its fitness below 1), evaluated at the result's transformation
+    // and inlier distance: the registration's own fitness and inlier RMSE (every source point
+    // is used, under max_source_points); at a tenth of the distance, fewer inliers.
+    let target = blob(2000, 3);
+    let m = motion(25.0, [0.1, 0.2, -0.1]);
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let source: Vec<Point3<f64>> = moved(&blob(1500, 5), &m)
+        .into_iter()
+        .filter(|p| p.x > -0.2)
+        .map(|p| p + nalgebra::Vector3::from_fn(|_, _| rng.random_range(-0.01..0.01)))
+        .collect();
+    let r = register(&source, &target, None, &quick()).unwrap();
+    let e = evaluate_registration(&source, &target, &r.matrix(), r.inlier_distance).unwrap();
+    let n = source.len() as f64;
+    assert!(
+        (e.fitness - r.fitness).abs() <= 1.0 / n,
+        "{} {}",
+        e.fitness,
+        r.fitness
+    );
+    assert!(r.fitness < 0.9, "{}", r.fitness);
+    assert!(
+        (e.inlier_rmse - r.inlier_rmse).abs() < 1e-3 * r.inlier_rmse,
+        "{} {}",
+        e.inlier_rmse,
+        r.inlier_rmse
+    );
+    assert_eq!(e.inliers, (e.fitness * n).round() as usize);
+    let tight =
+        evaluate_registration(&source, &target, &r.matrix(), 0.1 * r.inlier_distance).unwrap();
+    assert!(tight.fitness < e.fitness && tight.inlier_rmse < e.inlier_rmse);
 }
 
 #[test]

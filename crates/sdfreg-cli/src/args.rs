@@ -36,6 +36,10 @@ pub enum Command {
     /// initial guesses; writes each scan's pose (poses.json), and on request one model and one
     /// mesh of them all.
     Align(AlignArgs),
+    /// How well SOURCE, moved by a transformation, lies on TARGET at a distance in their units:
+    /// the share of SOURCE's points within --max-distance of a TARGET point (fitness) and their
+    /// RMS distance, as Open3D's evaluate_registration reports them; no registration is run.
+    Fitness(FitnessArgs),
 }
 
 /// The robust kernel's modes (`RobustMode`), as flags name them.
@@ -510,4 +514,32 @@ pub struct EvalArgs {
     pub force: bool,
     #[command(flatten)]
     pub common: Common,
+}
+
+#[derive(Args, Debug)]
+pub struct FitnessArgs {
+    /// The cloud to move (.ply, .pcd, .xyz, .txt, .csv).
+    pub source: PathBuf,
+    /// The cloud it is measured against, fixed.
+    pub target: PathBuf,
+    /// A source point is an inlier when its nearest target point is within this distance, in
+    /// the clouds' units (metres for a LiDAR scan).
+    #[arg(long, value_name = "DISTANCE")]
+    pub max_distance: f64,
+    /// The 4×4 mapping SOURCE into TARGET's frame: a text file of 16 numbers (what `register`
+    /// prints), or `register --output`'s .json [default: identity, the clouds as they are].
+    #[arg(long, short)]
+    pub transformation: Option<PathBuf>,
+    /// Also write the figures as JSON (`fitness`, `inlier_rmse`, `inliers`, `source_points`,
+    /// `max_distance`, `points_left_out`).
+    #[arg(long, short)]
+    pub output: Option<PathBuf>,
+    /// Overwrite --output if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// Seed of --surface-points' sampling.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub input: InputArgs,
 }

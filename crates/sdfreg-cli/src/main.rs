@@ -29,7 +29,9 @@ use sdfreg_core::{
 
 use output::{matrix_text, registration_json, summary_line};
 
-use args::{Cli, Command, DemoArgs, FitArgs, InputArgs, MeshArgs, RegisterArgs, TrackArgs};
+use args::{
+    Cli, Command, DemoArgs, FitArgs, FitnessArgs, InputArgs, MeshArgs, RegisterArgs, TrackArgs,
+};
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -42,6 +44,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => cmd_demo(a),
         Command::Eval(a) => eval::run(a),
         Command::Align(a) => align::run(a),
+        Command::Fitness(a) => cmd_fitness(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -287,6 +290,81 @@ fn cmd_fit(a: FitArgs) -> Result<()> {
         model.normalization().scale,
     );
     Ok(())
+}
+
+fn cmd_fitness(a: FitnessArgs) -> Result<()> {
+    if let Some(out) = &a.output {
+        refuse_overwrite(out, &[a.source.as_path(), a.target.as_path()], a.force)?;
+    }
+    let transformation = match &a.transformation {
+        Some(path) => read_transformation(path)?,
+        None => Matrix4::identity(),
+    };
+    let source = read_cloud(&a.source, &a.input, a.seed)?;
+    let target = read_cloud(&a.target, &a.input, a.seed)?;
+    let e = sdfreg_core::evaluate_registration(&source, &target, &transformation, a.max_distance)
+        .map_err(|e| match (&e, &a.transformation) {
+        (sdfreg_core::Error::InvalidSetting { .. }, _) => {
+            anyhow::Error::new(e).context(format!("--max-distance {}", args::shown(a.max_distance)))
+        }
+        (sdfreg_core::Error::InvalidTransformation, Some(path)) => {
+            anyhow::Error::new(e).context(path.display().to_string())
+        }
+        _ => e.into(),
+    })?;
+    println!(
+        "fitness {:.6} ({} of {} source points within {}), inlier RMSE {:.6e}",
+        e.fitness,
+        e.inliers,
+        e.source_points,
+        args::shown(e.max_distance),
+        e.inlier_rmse
+    );
+    if let Some(out) = &a.output {
+        let json = serde_json::json!({
+            "fitness": e.fitness,
+            "inlier_rmse": e.inlier_rmse,
+            "inliers": e.inliers,
+            "source_points": e.source_points,
+            "max_distance": e.max_distance,
+            "points_left_out": {"source": e.source_left_out, "target": e.target_left_out},
+        });
+        std::fs::write(out, serde_json::to_string_pretty(&json)? + "\n")
+            .with_context(|| out.display().to_string())?;
+    }
+    Ok(())
+}
+
+/// A 4×4 mapping source into target: `register --output`'s JSON (its `transformation`) when the
+/// file ends in `.json`, else a text file of 16 numbers ([`read_matrix4`]).
+fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return read_matrix4(path);
+    }
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    let rows: Option<Vec<f64>> = json["transformation"].as_array().and_then(|rows| {
+        (rows.len() == 4).then_some(())?;
+        rows.iter()
+            .map(|row| row.as_array().filter(|r| r.len() == 4))
+            .collect::<Option<Vec<_>>>()?
+            .into_iter()
+            .flatten()
+            .map(serde_json::Value::as_f64)
+            .collect()
+    });
+    match rows {
+        Some(v) => Ok(Matrix4::from_row_slice(&v)),
+        None => bail!(
+            "{}: expected a `transformation` of 4 rows of 4 numbers (as `sdfreg register --output \
+             FILE.json` writes it)",
+            path.display()
+        ),
+    }
 }
 
 fn cmd_mesh(a: MeshArgs) -> Result<()> {

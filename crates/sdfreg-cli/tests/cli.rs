@@ -1313,3 +1313,105 @@ fn a_source_that_fits_a_local_model_poorly_gets_a_warning_naming_the_global_kind
     assert!(!warned("global", "scattered.xyz"));
     assert!(!warned("local", "src.xyz"));
 }
+
+#[test]
+fn fitness_measures_a_transformation_at_a_distance_in_the_clouds_units() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let truth = pair(d);
+    let fitness = |extra: &[&str]| {
+        sdfreg()
+            .arg("fitness")
+            .arg(d.join("src.xyz"))
+            .arg(d.join("tgt.ply"))
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    // The true transformation as text: every point on its counterpart.
+    std::fs::write(d.join("truth.txt"), matrix_text_of(&truth.to_homogeneous())).unwrap();
+    let out = fitness(&[
+        "-t",
+        d.join("truth.txt").to_str().unwrap(),
+        "--max-distance",
+        "1e-6",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.starts_with("fitness 1.000000 (800 of 800 source points within 1e-6)"),
+        "{text}"
+    );
+    // The clouds as they are (identity), as JSON: few points near, the same count in the file.
+    let json = d.join("f.json");
+    let out = fitness(&["--max-distance", "0.05", "-o", json.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let f: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(f["source_points"], 800);
+    assert_eq!(f["max_distance"], 0.05);
+    let fit = f["fitness"].as_f64().unwrap();
+    assert!(fit < 0.5, "{fit}");
+    assert_eq!(f["inliers"].as_f64().unwrap(), (fit * 800.0).round());
+    // register's JSON serves as the transformation.
+    let result = d.join("r.json");
+    let out = register_cmd(d)
+        .args(QUICK)
+        .arg("-o")
+        .arg(&result)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let out = fitness(&["-t", result.to_str().unwrap(), "--max-distance", "0.01"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.starts_with("fitness 1.000000 (800 of 800"), "{text}");
+    // Refused by name: an existing output, a distance, a matrix that is no similarity, a JSON
+    // without a transformation.
+    std::fs::write(
+        d.join("shear.txt"),
+        "1 0.5 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+    )
+    .unwrap();
+    std::fs::write(d.join("other.json"), "{\"x\": 1}").unwrap();
+    for (extra, says) in [
+        (
+            vec!["--max-distance", "0.05", "-o", json.to_str().unwrap()],
+            "f.json: exists; pass --force to overwrite",
+        ),
+        (
+            vec!["--max-distance=-1"],
+            "--max-distance -1: invalid setting `max_distance`: must be a positive finite number",
+        ),
+        (
+            vec![
+                "--max-distance",
+                "1",
+                "-t",
+                d.join("shear.txt").to_str().unwrap(),
+            ],
+            "shear.txt: transformation is not a finite similarity",
+        ),
+        (
+            vec![
+                "--max-distance",
+                "1",
+                "-t",
+                d.join("other.json").to_str().unwrap(),
+            ],
+            "other.json: expected a `transformation` of 4 rows of 4 numbers",
+        ),
+    ] {
+        let out = fitness(&extra);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{extra:?}: {err}");
+        assert!(err.contains(says), "{err}");
+    }
+}

@@ -107,6 +107,7 @@ pub use model::mesh_model::MeshModel;
 pub use model::sdf_model::SdfModel;
 pub use pipeline::coarse_to_fine::CoarseToFineSettings;
 pub use pipeline::direction::SWAP_MIN_EXTENT;
+pub use pipeline::evaluate::{evaluate_registration, Evaluation};
 pub use pipeline::multistart::MultistartSettings;
 pub use pipeline::polish::{PolishSettings, SNAP_RATIO};
 pub use pipeline::register::{register, register_with_progress};

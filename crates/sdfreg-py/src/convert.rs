@@ -160,3 +160,17 @@ pub fn matrix4<'py>(py: Python<'py>, m: &Matrix4<f64>) -> Bound<'py, PyArray2<f6
 pub fn matrix6<'py>(py: Python<'py>, m: &Matrix6<f64>) -> Bound<'py, PyArray2<f64>> {
     Array2::from_shape_fn((6, 6), |(r, c)| m[(r, c)]).into_pyarray(py)
 }
+
+/// What a result's `__reduce__` returns: `sdfreg._sdfreg.<restore>` and `value`'s JSON, which
+/// `restore` reads back (a `Registration`, an `Evaluation`).
+pub fn reduce_as_json<'py, T: serde::Serialize>(
+    py: Python<'py>,
+    restore: &str,
+    value: &T,
+) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
+    let json = serde_json::to_string(value)
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
+    let restore = py.import("sdfreg._sdfreg")?.getattr(restore)?;
+    let args = pyo3::types::PyTuple::new(py, [json])?;
+    pyo3::types::PyTuple::new(py, [restore.into_any(), args.into_any()])
+}

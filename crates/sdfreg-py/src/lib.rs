@@ -14,6 +14,7 @@ mod align;
 mod batch;
 mod convert;
 mod error;
+mod evaluate;
 mod mesh_model;
 mod model;
 mod registration;
@@ -274,6 +275,9 @@ fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -
 #[pymodule]
 fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(register, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate::evaluate_registration, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate::_evaluation_from_json, m)?)?;
+    m.add_class::<evaluate::PyEvaluation>()?;
     m.add_function(wrap_pyfunction!(align::align, m)?)?;
     m.add_class::<align::PyAlignment>()?;
     m.add_function(wrap_pyfunction!(align::read_poses, m)?)?;

@@ -160,27 +160,11 @@ impl PyRegistration {
     /// left them out).
     #[getter]
     fn points_left_out<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let both = PyDict::new(py);
-        for (role, left_out) in [
-            ("source", &self.0.source_left_out),
-            ("target", &self.0.target_left_out),
-        ] {
-            let counts = PyDict::new(py);
-            counts.set_item("missing_returns", left_out.missing_returns)?;
-            counts.set_item("stray", left_out.stray)?;
-            both.set_item(role, counts)?;
-        }
-        Ok(both)
+        left_out_dict(py, &self.0.source_left_out, &self.0.target_left_out)
     }
 
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
-        let json = serde_json::to_string(&self.0)
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))?;
-        let restore = py
-            .import("sdfreg._sdfreg")?
-            .getattr("_registration_from_json")?;
-        let args = pyo3::types::PyTuple::new(py, [json])?;
-        pyo3::types::PyTuple::new(py, [restore.into_any(), args.into_any()])
+        convert::reduce_as_json(py, "_registration_from_json", &self.0)
     }
 
     fn __repr__(&self) -> String {
@@ -248,4 +232,20 @@ impl PyFreeMotion {
     fn __repr__(&self) -> String {
         format!("FreeMotion({})", self.0)
     }
+}
+
+/// `{"source": {"missing_returns": n, "stray": m}, "target": {…}}`.
+pub(crate) fn left_out_dict<'py>(
+    py: Python<'py>,
+    source: &sdfreg_core::LeftOut,
+    target: &sdfreg_core::LeftOut,
+) -> PyResult<Bound<'py, PyDict>> {
+    let both = PyDict::new(py);
+    for (role, left_out) in [("source", source), ("target", target)] {
+        let counts = PyDict::new(py);
+        counts.set_item("missing_returns", left_out.missing_returns)?;
+        counts.set_item("stray", left_out.stray)?;
+        both.set_item(role, counts)?;
+    }
+    Ok(both)
 }

@@ -27,7 +27,7 @@ def test_docstrings_match_the_stubs() -> None:
     """help() shows the runtime docstrings, editors the stub's: they must say the same."""
     tree = ast.parse(STUB.read_text(encoding="utf-8"))
     functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
-    for name in ("register", "register_many", "read_point_cloud", "write_point_cloud", "fit", "load_model", "mesh_model", "read_mesh", "read_poses"):
+    for name in ("register", "register_many", "evaluate_registration", "read_point_cloud", "write_point_cloud", "fit", "load_model", "mesh_model", "read_mesh", "read_poses"):
         stub_doc = ast.get_docstring(functions[name])
         assert inspect.getdoc(getattr(sdfreg, name)) == stub_doc, name
 

@@ -118,6 +118,12 @@ pub enum Error {
     /// The initial guess is not a finite rigid transform.
     #[error("initial guess is not a finite rigid transform")]
     InvalidInit,
+    /// A transformation to evaluate is not a finite similarity `[s R | t]`.
+    #[error(
+        "transformation is not a finite similarity [s R | t] (its 3×3 block a positive scale \
+         times a rotation, its last row 0 0 0 1)"
+    )]
+    InvalidTransformation,
     /// The worker thread pool could not be created.
     #[error("could not create the thread pool: {0}")]
     ThreadPool(String),

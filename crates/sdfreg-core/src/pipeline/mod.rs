@@ -10,10 +10,12 @@
 //!   [`polish`] (stage 7), [`shift_search`] (stage 8);
 //! - [`scale`]: the similarity's settings and scale starts (off by default);
 //! - [`registration`]: stage 9 and the result, [`report`]: what each stage did;
-//! - [`register`]: the entry points, one line per stage.
+//! - [`register`]: the entry points, one line per stage;
+//! - [`evaluate`]: a given transformation's fitness at a chosen distance, no registration run.
 
 pub(crate) mod coarse_to_fine;
 pub(crate) mod direction;
+pub(crate) mod evaluate;
 pub(crate) mod multistart;
 pub(crate) mod polish;
 pub(crate) mod register;

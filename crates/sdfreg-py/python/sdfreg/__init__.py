@@ -9,11 +9,14 @@ SDF once; ``register(source, model)`` then registers without fitting, and the mo
 loads and pickles. ``register_many(pairs)`` registers many pairs on every core;
 ``sdfreg.dask`` spreads them over a Dask cluster. ``align(scans)`` puts many views into one
 frame; ``Alignment.to_json()`` and ``read_poses(path)`` write and read its poses file.
+``evaluate_registration(source, target, max_distance, transformation)`` gives a
+transformation's fitness at a distance in the clouds' units.
 """
 
 from ._sdfreg import (
     Alignment,
     CoarseToFineSettings,
+    Evaluation,
     FitSettings,
     FreeMotion,
     LmSettings,
@@ -28,6 +31,7 @@ from ._sdfreg import (
     ShiftSearchSettings,
     __version__,
     align,
+    evaluate_registration,
     fit,
     load_model,
     mesh_model,
@@ -42,6 +46,7 @@ from ._sdfreg import (
 __all__ = [
     "Alignment",
     "CoarseToFineSettings",
+    "Evaluation",
     "FitSettings",
     "FreeMotion",
     "LmSettings",
@@ -56,6 +61,7 @@ __all__ = [
     "ShiftSearchSettings",
     "__version__",
     "align",
+    "evaluate_registration",
     "fit",
     "load_model",
     "mesh_model",

@@ -24,6 +24,7 @@ __version__: str
 __all__ = [
     "Alignment",
     "CoarseToFineSettings",
+    "Evaluation",
     "FitSettings",
     "FreeMotion",
     "LmSettings",
@@ -39,9 +40,11 @@ __all__ = [
     "__version__",
     "_model_from_bytes",
     "_registration_from_json",
+    "_evaluation_from_json",
     "_settings_from_json",
     "_settings_keywords",
     "align",
+    "evaluate_registration",
     "fit",
     "load_model",
     "mesh_model",
@@ -1061,6 +1064,66 @@ def _mesh_model_from_parts(
 def _model_from_bytes(data: bytes) -> SdfModel:
     """A model from ``.sdfm`` bytes (unpickling)."""
 
+def evaluate_registration(
+    source: Union[npt.ArrayLike, _HasPoints],
+    target: Union[npt.ArrayLike, _HasPoints],
+    max_distance: float,
+    transformation: Optional[npt.ArrayLike] = None,
+) -> Evaluation:
+    """How well ``source``, moved by ``transformation``, lies on ``target``, at a distance in their
+    units, with no registration run: as Open3D's ``evaluate_registration``.
+
+    Use it to judge a result at your own tolerance (a :class:`Registration`'s ``fitness`` is at
+    ``inlier_distance``, a fraction of the target's size), or to compare another tool's answer
+    with sdfreg's on the same terms.
+
+    Args:
+        source: (N, 3) points to move (array, Open3D ``PointCloud``, …).
+        target: (M, 3) points, fixed, the same units.
+        max_distance: A source point is an inlier when its nearest target point lies within
+            this distance, in the clouds' units (metres for a LiDAR scan).
+        transformation: 4×4 mapping source into target (``Registration.transformation``, rigid
+            or a similarity ``[s R | t]``); None: the identity, the clouds as they are.
+
+    Missing returns at (0, 0, 0) and stray points are left out of both clouds first, as
+    :func:`register` leaves them out (and warned the same way); every other point counts.
+
+    Returns:
+        The :class:`Evaluation`: ``fitness``, ``inlier_rmse``, ``inliers``, ``source_points``.
+
+    Raises:
+        ValueError: a cloud is not an (N, 3) float array, has a NaN or infinite coordinate,
+            fewer than 10 points or no extent; ``max_distance`` is not positive and finite;
+            ``transformation`` is not a 4×4 similarity.
+    """
+
+@final
+class Evaluation:
+    """How well a transformed source lies on a target (see ``sdfreg.evaluate_registration``)."""
+
+    @property
+    def fitness(self) -> float:
+        """Fraction of the source's points within ``max_distance`` of a target point."""
+    @property
+    def inlier_rmse(self) -> float:
+        """RMS distance of those inliers to their nearest target points, the clouds' units; 0.0
+        when there are none."""
+    @property
+    def inliers(self) -> int:
+        """How many source points are inliers."""
+    @property
+    def source_points(self) -> int:
+        """How many source points were counted (less the missing returns and stray points)."""
+    @property
+    def max_distance(self) -> float:
+        """The distance asked for, the clouds' units."""
+    @property
+    def points_left_out(self) -> Dict[str, Dict[str, int]]:
+        """The points left out of each cloud, as :attr:`Registration.points_left_out`."""
+    def __reduce__(self) -> Any: ...
+
+def _evaluation_from_json(json: str) -> Evaluation:
+    """An evaluation from its JSON (unpickling)."""
 def _registration_from_json(json: str) -> Registration:
     """A registration from its JSON (unpickling)."""
 
