@@ -99,7 +99,9 @@ def reference_worth(match: Path, row: dict) -> None:
     """Point-to-plane ICP and GICP (Open3D, normals from 30 neighbours within 0.1 m) and
     small_gicp's GICP (when installed) started at the published pose of the 3DMatch pair: how
     far each moves from it, and how far sdfreg's answer (`row`) is from where they stop. A
-    reference the data's own best fit moves away from cannot score a method closer than that."""
+    reference the data's own best fit moves away from cannot score a method closer than that.
+    Also, needing no reference, how much of the source sdfreg's answer and gt.txt each lay on
+    the target."""
     try:
         import open3d as o3d
     except ImportError:
@@ -124,6 +126,13 @@ def reference_worth(match: Path, row: dict) -> None:
           f"on average over the overlap ({overlap.mean():.0%} within 5 cm of the target under "
           f"gt.txt; median {np.median(apart[overlap]):.4f} m), {apart.min():.4f}–{apart.max():.4f} m "
           f"over all; the source's centroid is {np.linalg.norm(pts.mean(0)):.2f} m from its origin")
+    # Needing no reference: the share of the source each pose lays within 1, 2, 5 and 10 cm of
+    # the target (sdfreg.evaluate_registration, Open3D's fitness), and those points' RMS.
+    clouds = [np.asarray(pc.points) for pc in (src, tgt)]
+    for label, t in (("sdfreg's answer", ours), ("gt.txt", gt)):
+        scores = [(d, sdfreg.evaluate_registration(*clouds, d, t)) for d in (0.01, 0.02, 0.05, 0.1)]
+        print(f"  fitness of {label:<15} " + "  ".join(
+            f"{d:.2f} m: {e.fitness:.4f} ({e.inlier_rmse * 1e3:.1f} mm)" for d, e in scores))
     for name, est in (("point-to-plane ICP", reg.TransformationEstimationPointToPlane()),
                       ("GICP", reg.TransformationEstimationForGeneralizedICP())):
         for dist in (0.05, 0.1):
