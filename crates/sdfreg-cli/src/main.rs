@@ -347,18 +347,8 @@ fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
     let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
     let json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
-    let rows: Option<Vec<f64>> = json["transformation"].as_array().and_then(|rows| {
-        (rows.len() == 4).then_some(())?;
-        rows.iter()
-            .map(|row| row.as_array().filter(|r| r.len() == 4))
-            .collect::<Option<Vec<_>>>()?
-            .into_iter()
-            .flatten()
-            .map(serde_json::Value::as_f64)
-            .collect()
-    });
-    match rows {
-        Some(v) => Ok(Matrix4::from_row_slice(&v)),
+    match sdfreg_core::geometry::se3::matrix_from_rows(&json["transformation"]) {
+        Some(m) => Ok(m),
         None => bail!(
             "{}: expected a `transformation` of 4 rows of 4 numbers (as `sdfreg register --output \
              FILE.json` writes it)",

@@ -45,9 +45,7 @@ pub fn evaluate_registration<'py>(
     let matrix = match transformation {
         Some(m) => {
             let (pose, scale) = convert::similarity(m, "transformation")?;
-            let mut m = pose.to_homogeneous();
-            m.fixed_view_mut::<3, 3>(0, 0).scale_mut(scale);
-            m
+            nalgebra::Similarity3::from_isometry(pose, scale).to_homogeneous()
         }
         None => nalgebra::Matrix4::identity(),
     };

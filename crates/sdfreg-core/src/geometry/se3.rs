@@ -9,7 +9,8 @@
 //! Entry points: [`hat`], [`vee`], [`exp_so3`], [`log_so3`], [`exp_se3`], [`log_se3`],
 //! [`adjoint`],
 //! [`rotation_angle`] (geodesic distance between rotations), [`isometry_from_matrix`] (a user's
-//! 4×4 matrix checked to be rigid), [`matrix_rows`] (a matrix as JSON's nested rows).
+//! 4×4 matrix checked to be rigid), [`matrix_rows`] (a matrix as JSON's nested rows) and
+//! [`matrix_from_rows`] (a 4×4 read back from them).
 
 use nalgebra::{
     Isometry3, Matrix3, Matrix4, Matrix6, Rotation3, SMatrix, SVector, Translation3,
@@ -44,6 +45,21 @@ pub fn isometry_from_matrix(m: &Matrix4<f64>) -> Option<Isometry3<f64>> {
 /// 6×6 information matrices of the CLI's and the poses file's JSON).
 pub fn matrix_rows<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> Vec<[f64; C]> {
     (0..R).map(|r| std::array::from_fn(|c| m[(r, c)])).collect()
+}
+
+/// A 4×4 read back from JSON's four rows of four numbers ([`matrix_rows`]' inverse: the
+/// `transformation` of `register --output`'s JSON and of a poses file); `None` when `v` is not
+/// that.
+pub fn matrix_from_rows(v: &serde_json::Value) -> Option<Matrix4<f64>> {
+    let rows = v.as_array().filter(|r| r.len() == 4)?;
+    let mut m = Matrix4::zeros();
+    for (r, row) in rows.iter().enumerate() {
+        let row = row.as_array().filter(|c| c.len() == 4)?;
+        for (c, x) in row.iter().enumerate() {
+            m[(r, c)] = x.as_f64()?;
+        }
+    }
+    Some(m)
 }
 
 /// The similarity of a homogeneous 4×4 matrix `[s R t; 0 1]` (`s > 0`): its rigid part

@@ -25,11 +25,11 @@
 
 use std::path::Path;
 
-use nalgebra::{Isometry3, Matrix4};
+use nalgebra::Isometry3;
 use serde_json::Value;
 
 use crate::base::error::IoError;
-use crate::geometry::se3::{isometry_from_matrix, matrix_rows};
+use crate::geometry::se3::{isometry_from_matrix, matrix_from_rows, matrix_rows};
 use crate::views::align::Alignment;
 
 /// The `"format"` of a poses file.
@@ -185,7 +185,7 @@ pub fn read_poses(bytes: &[u8], path: &Path) -> Result<Vec<Option<Isometry3<f64>
         .enumerate()
         .map(|(k, s)| match s.get("transformation") {
             Some(Value::Null) => Ok(None),
-            Some(m) => matrix(m)
+            Some(m) => matrix_from_rows(m)
                 .and_then(|m| isometry_from_matrix(&m))
                 .map(Some)
                 .ok_or_else(|| {
@@ -199,19 +199,6 @@ pub fn read_poses(bytes: &[u8], path: &Path) -> Result<Vec<Option<Isometry3<f64>
             None => Err(bad(None, format!("scans[{k}] has no \"transformation\""))),
         })
         .collect()
-}
-
-/// A 4×4 written as four rows of four numbers.
-fn matrix(v: &Value) -> Option<Matrix4<f64>> {
-    let rows = v.as_array().filter(|r| r.len() == 4)?;
-    let mut m = Matrix4::zeros();
-    for (r, row) in rows.iter().enumerate() {
-        let row = row.as_array().filter(|c| c.len() == 4)?;
-        for (c, x) in row.iter().enumerate() {
-            m[(r, c)] = x.as_f64()?;
-        }
-    }
-    Some(m)
 }
 
 #[cfg(test)]
