@@ -250,3 +250,90 @@ fn a_mesh_is_its_own_exact_distance_field_and_registers_without_fitting() {
     let none = MeshModel::new(&vertices, &[], &s).unwrap_err();
     assert_eq!(none.to_string(), "target mesh: no triangles");
 }
+
+#[test]
+fn a_model_and_a_mesh_evaluate_a_transformation_against_their_own_targets() {
+    use sdfreg_core::{evaluate_registration, Error, MeshModel};
+    let s = quick();
+    let target = shapes::blob(1024, &mut ChaCha8Rng::seed_from_u64(21));
+    let model = SdfModel::fit(&target, &s).unwrap();
+    // A source: the target's points pushed out by 3 % of their radius, moved by `m`, so
+    // `m⁻¹` lays it back at that offset.
+    let m = motion(25.0, [0.1, -0.2, 0.05]);
+    let pushed: Vec<Point3<f64>> = target
+        .iter()
+        .map(|p| Point3::from(p.coords * 1.03))
+        .collect();
+    let source = moved(&pushed, &m);
+    let back = m.inverse().to_homogeneous();
+    // Against the model: the same figures as against the points it was fitted to (all of
+    // them: 1024 is below max_target_points), to the bit.
+    for d in [0.01, 0.03, 0.1] {
+        let e = model.evaluate_registration(&source, &back, d).unwrap();
+        let by_cloud = evaluate_registration(&source, &target, &back, d).unwrap();
+        assert_eq!(e, by_cloud, "at {d}");
+    }
+    assert!(
+        model
+            .evaluate_registration(&source, &back, 0.1)
+            .unwrap()
+            .fitness
+            > 0.99
+    );
+    // Bad settings are refused by name, as by the function.
+    let e = model
+        .evaluate_registration(&source, &back, -1.0)
+        .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            Error::InvalidSetting {
+                name: "max_distance",
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    let e = model
+        .evaluate_registration(&source, &nalgebra::Matrix4::zeros(), 0.1)
+        .unwrap_err();
+    assert!(matches!(e, Error::InvalidTransformation), "{e:?}");
+
+    // Against a mesh: each point's exact distance to the faces. Its vertices pushed out by
+    // 0.02 along their normals lie 0.02 off (less where the surface curves), whatever the
+    // sampling of the faces; the distance to the nearest sampled point would be larger.
+    let (vertices, triangles) = shapes::blob_mesh(48);
+    let mesh = MeshModel::new(&vertices, &triangles, &s).unwrap();
+    let (_, normals) = mesh.evaluate(&vertices);
+    let off: Vec<Point3<f64>> = vertices
+        .iter()
+        .zip(&normals)
+        .map(|(p, n)| p + n.normalize() * 0.02)
+        .collect();
+    let e = mesh
+        .evaluate_registration(&moved(&off, &m), &back, 0.025)
+        .unwrap();
+    assert_eq!(e.fitness, 1.0);
+    assert!(
+        (e.inlier_rmse - 0.02).abs() < 1e-3,
+        "exact distance {}",
+        e.inlier_rmse
+    );
+    let tight = mesh
+        .evaluate_registration(&moved(&off, &m), &back, 0.015)
+        .unwrap();
+    assert!(tight.fitness < 0.05, "{}", tight.fitness);
+    let sampled = evaluate_registration(
+        &off,
+        &mesh.target_points(),
+        &nalgebra::Matrix4::identity(),
+        0.025,
+    )
+    .unwrap();
+    assert!(
+        sampled.inlier_rmse > e.inlier_rmse,
+        "{} {}",
+        sampled.inlier_rmse,
+        e.inlier_rmse
+    );
+}

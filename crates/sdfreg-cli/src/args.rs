@@ -520,12 +520,17 @@ pub struct EvalArgs {
 pub struct FitnessArgs {
     /// The cloud to move (.ply, .pcd, .xyz, .txt, .csv).
     pub source: PathBuf,
-    /// The cloud it is measured against, fixed.
+    /// What it is measured against, fixed: a cloud, a model (.sdfm: the target points it was
+    /// fitted to), or with --exact-mesh a mesh.
     pub target: PathBuf,
     /// A source point is an inlier when its nearest target point is within this distance, in
     /// the clouds' units (metres for a LiDAR scan).
     #[arg(long, value_name = "DISTANCE")]
     pub max_distance: f64,
+    /// TARGET is a mesh (.ply with faces): each source point's exact distance to its triangles
+    /// instead of the distance to the nearest target point.
+    #[arg(long)]
+    pub exact_mesh: bool,
     /// The 4×4 mapping SOURCE into TARGET's frame: a text file of 16 numbers (what `register`
     /// prints), or `register --output`'s .json [default: identity, the clouds as they are].
     #[arg(long, short)]

@@ -229,6 +229,21 @@ fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f6
     Ok(points)
 }
 
+/// A mesh's vertices and triangles (indices into the vertices).
+type Mesh = (Vec<Point3<f64>>, Vec<[usize; 3]>);
+
+/// The mesh of `--exact-mesh`: [`read_mesh`], refusing a file without faces.
+fn read_exact_mesh(path: &Path) -> Result<Mesh> {
+    let (vertices, triangles) = read_mesh(path)?;
+    if triangles.is_empty() {
+        bail!(
+            "{}: --exact-mesh needs a mesh, but the file has no faces",
+            path.display()
+        );
+    }
+    Ok((vertices, triangles))
+}
+
 /// Whether `path` names a model file (`.sdfm`).
 fn is_model(path: &Path) -> bool {
     path.extension()
@@ -301,16 +316,26 @@ fn cmd_fitness(a: FitnessArgs) -> Result<()> {
         None => Matrix4::identity(),
     };
     let source = read_cloud(&a.source, &a.input, a.seed)?;
-    let target = read_cloud(&a.target, &a.input, a.seed)?;
-    let e = sdfreg_core::evaluate_registration(&source, &target, &transformation, a.max_distance)
-        .map_err(|e| match (&e, &a.transformation) {
+    let evaluated = if a.exact_mesh {
+        let (vertices, triangles) = read_exact_mesh(&a.target)?;
+        let settings = sdfreg_core::RegisterSettings::default();
+        let mesh = MeshModel::new(&vertices, &triangles, &settings)
+            .with_context(|| a.target.display().to_string())?;
+        mesh.evaluate_registration(&source, &transformation, a.max_distance)
+    } else if is_model(&a.target) {
+        SdfModel::load(&a.target)?.evaluate_registration(&source, &transformation, a.max_distance)
+    } else {
+        let target = read_cloud(&a.target, &a.input, a.seed)?;
+        sdfreg_core::evaluate_registration(&source, &target, &transformation, a.max_distance)
+    };
+    let e = evaluated.map_err(|e| match (&e, &a.transformation) {
         (sdfreg_core::Error::InvalidSetting { .. }, _) => {
             anyhow::Error::new(e).context(format!("--max-distance {}", args::shown(a.max_distance)))
         }
         (sdfreg_core::Error::InvalidTransformation, Some(path)) => {
             anyhow::Error::new(e).context(path.display().to_string())
         }
-        _ => e.into(),
+        _ => name_cloud(e.into(), &a.source, &a.target),
     })?;
     println!(
         "fitness {:.6} ({} of {} source points within {}), inlier RMSE {:.6e}",
@@ -441,13 +466,7 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         path => path.map(read_matrix).transpose()?,
     };
     let r = if a.exact_mesh {
-        let (vertices, triangles) = read_mesh(&a.target)?;
-        if triangles.is_empty() {
-            bail!(
-                "{}: --exact-mesh needs a mesh, but the file has no faces",
-                a.target.display()
-            );
-        }
+        let (vertices, triangles) = read_exact_mesh(&a.target)?;
         let mesh = MeshModel::new(&vertices, &triangles, &settings)
             .map_err(|e| name_cloud(e.into(), &a.source, &a.target))?;
         mesh.register(&source, init.as_ref(), &settings)

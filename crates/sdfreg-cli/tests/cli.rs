@@ -1415,3 +1415,92 @@ fn fitness_measures_a_transformation_at_a_distance_in_the_clouds_units() {
         assert!(err.contains(says), "{err}");
     }
 }
+
+#[test]
+fn fitness_against_a_model_or_a_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let truth = pair(d);
+    std::fs::write(d.join("truth.txt"), matrix_text_of(&truth.to_homogeneous())).unwrap();
+    let run = |args: &[&str]| sdfreg().current_dir(d).args(args).output().unwrap();
+    let stdout = |out: &std::process::Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    // A model holds the target points it was fitted to: the same figures as the cloud.
+    let fit = run(&[&["fit", "tgt.ply", "-o", "tgt.sdfm"][..], &QUICK[..]].concat());
+    stdout(&fit);
+    for distance in ["1e-6", "0.05"] {
+        let args = ["-t", "truth.txt", "--max-distance", distance];
+        let by_cloud = run(&[&["fitness", "src.xyz", "tgt.ply"][..], &args[..]].concat());
+        let by_model = run(&[&["fitness", "src.xyz", "tgt.sdfm"][..], &args[..]].concat());
+        let (by_cloud, by_model) = (stdout(&by_cloud), stdout(&by_model));
+        assert_eq!(by_cloud, by_model);
+        assert!(
+            by_model.starts_with("fitness 1.000000 (800 of 800"),
+            "{by_model}"
+        );
+    }
+    // A mesh's exact distance: the blob mesh's vertices, 0.01 out along the normals.
+    let (vertices, triangles) = sdfreg_core::sim::shapes::blob_mesh(40);
+    sdfreg_core::io::write_mesh(d.join("mesh.ply"), &vertices, &triangles).unwrap();
+    let mesh = sdfreg_core::MeshModel::new(
+        &vertices,
+        &triangles,
+        &sdfreg_core::RegisterSettings::default(),
+    )
+    .unwrap();
+    let (_, normals) = mesh.evaluate(&vertices);
+    let off: Vec<Point3<f64>> = vertices
+        .iter()
+        .zip(&normals)
+        .map(|(p, n)| p + n.normalize() * 0.01)
+        .collect();
+    write_xyz(&d.join("off.xyz"), &off);
+    let against_mesh = |extra: &[&str]| {
+        let fixed = [
+            "fitness",
+            "off.xyz",
+            "mesh.ply",
+            "--exact-mesh",
+            "--max-distance",
+        ];
+        stdout(&run(&[&fixed[..], extra].concat()))
+    };
+    let out = against_mesh(&["0.012", "-o", "m.json"]);
+    assert!(out.starts_with("fitness 1.000000"), "{out}");
+    let f: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("m.json")).unwrap()).unwrap();
+    let rmse = f["inlier_rmse"].as_f64().unwrap();
+    assert!((rmse - 0.01).abs() < 5e-4, "{rmse}");
+    let out = against_mesh(&["0.008"]);
+    assert!(out.starts_with("fitness 0.0"), "{out}");
+    // Refused by name: a cloud given as a mesh; a source too small, named by its file.
+    write_xyz(&d.join("few.xyz"), &off[..4]);
+    for (args, says) in [
+        (
+            vec![
+                "fitness",
+                "off.xyz",
+                "src.xyz",
+                "--exact-mesh",
+                "--max-distance",
+                "1",
+            ],
+            "src.xyz: meshes are read from PLY files",
+        ),
+        (
+            vec!["fitness", "few.xyz", "tgt.sdfm", "--max-distance", "1"],
+            "few.xyz: source cloud has 4 points",
+        ),
+    ] {
+        let out = run(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{err}");
+    }
+}

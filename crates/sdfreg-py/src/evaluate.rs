@@ -3,7 +3,7 @@
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::{convert, error};
+use crate::{convert, error, Target};
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
 /// How well ``source``, moved by ``transformation``, lies on ``target``, at a distance in their
@@ -15,14 +15,17 @@ use crate::{convert, error};
 ///
 /// Args:
 ///     source: (N, 3) points to move (array, Open3D ``PointCloud``, …).
-///     target: (M, 3) points, fixed, the same units.
+///     target: (M, 3) points, fixed, the same units; or an :class:`SdfModel` (against the
+///         target points it was fitted to, :attr:`SdfModel.target_points`) or a
+///         :class:`MeshModel` (each source point's exact distance to the mesh's faces).
 ///     max_distance: A source point is an inlier when its nearest target point lies within
 ///         this distance, in the clouds' units (metres for a LiDAR scan).
 ///     transformation: 4×4 mapping source into target (``Registration.transformation``, rigid
 ///         or a similarity ``[s R | t]``); None: the identity, the clouds as they are.
 ///
 /// Missing returns at (0, 0, 0) and stray points are left out of both clouds first, as
-/// :func:`register` leaves them out (and warned the same way); every other point counts.
+/// :func:`register` leaves them out (and warned the same way; a model's fit left out its
+/// target's); every other point counts.
 ///
 /// Returns:
 ///     The :class:`Evaluation`: ``fitness``, ``inlier_rmse``, ``inliers``, ``source_points``.
@@ -41,7 +44,7 @@ pub fn evaluate_registration<'py>(
     transformation: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<PyEvaluation> {
     let source = convert::points(source, "source")?;
-    let target = convert::points(target, "target")?;
+    let target = Target::from_python(target)?;
     let matrix = match transformation {
         Some(m) => {
             let (pose, scale) = convert::similarity(m, "transformation")?;
@@ -50,7 +53,13 @@ pub fn evaluate_registration<'py>(
         None => nalgebra::Matrix4::identity(),
     };
     let e = py
-        .detach(|| sdfreg_core::evaluate_registration(&source, &target, &matrix, max_distance))
+        .detach(|| match &target {
+            Target::Cloud(target) => {
+                sdfreg_core::evaluate_registration(&source, target, &matrix, max_distance)
+            }
+            Target::Model(model) => model.evaluate_registration(&source, &matrix, max_distance),
+            Target::Mesh(mesh) => mesh.evaluate_registration(&source, &matrix, max_distance),
+        })
         .map_err(|e| match e {
             sdfreg_core::Error::InvalidSetting { reason, .. } => {
                 error::argument("max_distance", reason)
@@ -58,7 +67,9 @@ pub fn evaluate_registration<'py>(
             e => error::registration(e),
         })?;
     error::warn_left_out(py, "source", source.len(), &e.source_left_out)?;
-    error::warn_left_out(py, "target", target.len(), &e.target_left_out)?;
+    if let Target::Cloud(target) = &target {
+        error::warn_left_out(py, "target", target.len(), &e.target_left_out)?;
+    }
     Ok(PyEvaluation(e))
 }
 

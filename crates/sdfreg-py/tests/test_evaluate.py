@@ -73,3 +73,30 @@ def test_bad_clouds_raise_value_error() -> None:
         sdfreg.evaluate_registration(grid()[:5], grid(), 1.0)
     with pytest.raises(ValueError, match=r"target: expected an \(N, 3\) array"):
         sdfreg.evaluate_registration(grid(), grid()[:, :2], 1.0)
+
+
+def test_a_model_or_a_mesh_is_evaluated_against_its_own_target() -> None:
+    from test_mesh_model import uv_sphere
+
+    rng = np.random.default_rng(5)
+    target = blob(1000, rng)
+    model = sdfreg.fit(target, fit=QUICK["fit"])
+    turn = np.eye(4)
+    turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    source = (target * 1.02) @ turn[:3, :3]  # turned back by `turn`
+    for d in (0.005, 0.02, 0.1):
+        by_model = sdfreg.evaluate_registration(source, model, d, turn)
+        by_cloud = sdfreg.evaluate_registration(source, model.target_points, d, turn)
+        assert (by_model.fitness, by_model.inlier_rmse, by_model.inliers) == (
+            by_cloud.fitness, by_cloud.inlier_rmse, by_cloud.inliers)
+    # A mesh: each point's exact distance to the faces. The vertices moved out by 0.01 along
+    # their normals lie 0.01 off, nearer than the sampled face points do.
+    vertices, faces = uv_sphere()
+    mesh = sdfreg.mesh_model(vertices, faces)
+    normals = vertices / np.array([0.6, 0.4, 0.3]) ** 2  # the ellipsoid's
+    off = vertices + 0.01 * normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    e = sdfreg.evaluate_registration(off, mesh, 0.012)
+    assert e.fitness == 1.0 and abs(e.inlier_rmse - 0.01) < 5e-4
+    assert sdfreg.evaluate_registration(off, mesh, 0.008).fitness < 0.05
+    with pytest.raises(ValueError, match="max_distance: must be a positive finite number"):
+        sdfreg.evaluate_registration(off, mesh, -1.0)

@@ -1,15 +1,17 @@
 //! A target mesh as a model: its exact distance field ([`crate::field::mesh::MeshField`]) and
 //! points sampled on it, registered against without any fitting.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::{Error, Role};
 use crate::field::baked::{BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
 use crate::field::mesh::MeshField;
-use crate::geometry::cloud::{validate, Normalization};
+use crate::field::Field;
+use crate::geometry::cloud::{validate, LeftOut, Normalization};
 use crate::geometry::tree::{build_tree, Tree};
+use crate::pipeline::evaluate::{Evaluation, MovedSource};
 use crate::pipeline::registration::Registration;
 use crate::pipeline::settings::RegisterSettings;
 use crate::pipeline::surface::{Surface, WithGrid};
@@ -55,8 +57,9 @@ impl Surface for MeshSurface {
 pub struct MeshModel {
     norm: Normalization,
     surface: MeshSurface,
-    /// The distance baked into a grid for the multi-start ([`crate::field::baked`]).
-    grid: std::sync::Arc<BakedGrid>,
+    /// The distance baked into a grid for the multi-start ([`crate::field::baked`]), made by
+    /// the first registration (evaluating a transformation does not need it).
+    grid: std::sync::OnceLock<std::sync::Arc<BakedGrid>>,
 }
 
 impl MeshModel {
@@ -64,7 +67,7 @@ impl MeshModel {
     /// `vertices`). The polish and the quality figures use
     /// [`RegisterSettings::max_target_points`] points sampled uniformly by area on the faces
     /// (seeded by [`RegisterSettings::seed`]); the multi-start reads the distance baked into a
-    /// grid, made here ([`crate::field::baked`]). Fails on a non-finite vertex, an index out of
+    /// grid ([`crate::field::baked`]), made by the first registration. Fails on a non-finite vertex, an index out of
     /// range, no triangles or no area.
     pub fn new(
         vertices: &[Point3<f64>],
@@ -94,9 +97,6 @@ impl MeshModel {
         .ok_or_else(|| Error::InvalidMesh("the triangles have no area".into()))?;
         let target: Vec<[f32; 3]> = samples.iter().map(|p| norm.to_unit(p)).collect();
         let tree = build_tree(&target);
-        let grid = crate::base::pool::in_pool(settings.threads, || {
-            BakedGrid::bake(&field, BAKED_CELLS, BAKED_HALF_EXTENT)
-        })?;
         Ok(MeshModel {
             norm,
             surface: MeshSurface {
@@ -105,8 +105,19 @@ impl MeshModel {
                 tree,
                 spacing: std::sync::OnceLock::new(),
             },
-            grid: std::sync::Arc::new(grid),
+            grid: std::sync::OnceLock::new(),
         })
+    }
+
+    /// The distance baked into a grid, made on `threads` workers when first asked for.
+    fn grid(&self, threads: usize) -> Result<&std::sync::Arc<BakedGrid>, Error> {
+        if let Some(grid) = self.grid.get() {
+            return Ok(grid);
+        }
+        let grid = crate::base::pool::in_pool(threads, || {
+            BakedGrid::bake(&self.surface.field, BAKED_CELLS, BAKED_HALF_EXTENT)
+        })?;
+        Ok(self.grid.get_or_init(|| std::sync::Arc::new(grid)))
     }
 
     /// Whether the distance is signed (a closed, consistently oriented mesh).
@@ -126,7 +137,7 @@ impl MeshModel {
     ) -> Result<Registration, Error> {
         crate::pipeline::register::against(
             &self.norm,
-            &WithGrid::new(&self.surface, &self.grid),
+            &WithGrid::new(&self.surface, self.grid(settings.threads)?),
             source,
             init,
             settings,
@@ -148,6 +159,30 @@ impl MeshModel {
     /// The closest surface point of each of `points`, target units and frame.
     pub fn closest_points(&self, points: &[Point3<f64>]) -> Vec<Point3<f64>> {
         crate::field::closest_user(points, self.evaluate(points))
+    }
+
+    /// How well `source`, moved by `transformation` (source into the mesh's frame, `p_target =
+    /// s R p_source + t`, rigid or a similarity), lies on the mesh: as
+    /// [`crate::evaluate_registration`], with each point's exact distance to the faces in place
+    /// of the distance to the nearest target point, at `max_distance` in the mesh's units.
+    ///
+    /// # Errors
+    /// As [`crate::evaluate_registration`], for the source, `max_distance` and
+    /// `transformation`.
+    pub fn evaluate_registration(
+        &self,
+        source: &[Point3<f64>],
+        transformation: &Matrix4<f64>,
+        max_distance: f64,
+    ) -> Result<Evaluation, Error> {
+        MovedSource::new(source, transformation, max_distance)?.measured(
+            &self.norm,
+            LeftOut::default(),
+            |moved| {
+                let (phi, _) = self.surface.field.eval_points(moved, false);
+                phi.iter().map(|d| d * d).collect()
+            },
+        )
     }
 
     /// The points sampled on the faces (target units and frame).

@@ -17,7 +17,7 @@
 
 use std::sync::{Arc, OnceLock};
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Matrix4, Point3, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -27,13 +27,15 @@ use crate::field::local_grid::{ModelKind, SparseBaked};
 use crate::field::mlp::{Mlp, MlpSettings};
 use crate::fit::fitter::SdfFitter;
 use crate::fit::settings::FitSettings;
-use crate::geometry::cloud::{usable, Normalization};
+use crate::geometry::cloud::{usable, LeftOut, Normalization};
 use crate::geometry::planes::SharedPlanes;
+use crate::pipeline::evaluate::{Evaluation, MovedSource};
 use crate::pipeline::registration::Registration;
 use crate::pipeline::report::Stage;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::pipeline::surface::WithGrid;
 use crate::pipeline::target::prefit;
+use crate::solve::measure::nearest_distances2;
 
 /// A target fitted once: its normalisation, Φ (with the state of its fit) and the target
 /// points. Fit once with [`SdfModel::fit`], then register many sources against it, track, query,
@@ -289,6 +291,30 @@ impl SdfModel {
                     .to_user(&Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
             })
             .collect()
+    }
+
+    /// How well `source`, moved by `transformation` (source into the target's frame, `p_target
+    /// = s R p_source + t`, rigid or a similarity), lies on the target points this model was
+    /// fitted to ([`Self::target_points`]): [`crate::evaluate_registration`] against them, at
+    /// `max_distance` in the target's units. A target of more than
+    /// [`RegisterSettings::max_target_points`] was fitted from a subsample, and the figures are
+    /// then against that subsample (a lower fitness at distances near its spacing). The
+    /// target's left-out counts are 0: its fit left those points out.
+    ///
+    /// # Errors
+    /// As [`crate::evaluate_registration`], for the source, `max_distance` and
+    /// `transformation`.
+    pub fn evaluate_registration(
+        &self,
+        source: &[Point3<f64>],
+        transformation: &Matrix4<f64>,
+        max_distance: f64,
+    ) -> Result<Evaluation, Error> {
+        MovedSource::new(source, transformation, max_distance)?.measured(
+            &self.norm,
+            LeftOut::default(),
+            |moved| nearest_distances2(self.fitter.tree(), moved),
+        )
     }
 
     /// The seed the model was fitted with.

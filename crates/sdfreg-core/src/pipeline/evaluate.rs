@@ -60,31 +60,75 @@ pub fn evaluate_registration(
     transformation: &Matrix4<f64>,
     max_distance: f64,
 ) -> Result<Evaluation, Error> {
-    check::positive("max_distance", max_distance)?;
-    let (pose, scale) =
-        similarity_from_matrix(transformation).ok_or(Error::InvalidTransformation)?;
-    let (source, source_left_out) = usable(source, Role::Source, MIN_POINTS)?;
+    let moved = MovedSource::new(source, transformation, max_distance)?;
     let (target, target_left_out) = usable(target, Role::Target, MIN_POINTS)?;
     let norm = Normalization::from_target(&target)?;
-    let threshold = max_distance / norm.scale;
-    let d2 = in_pool(0, || {
+    moved.measured(&norm, target_left_out, |moved| {
         let unit_target: Vec<[f32; 3]> = target.par_iter().map(|p| norm.to_unit(p)).collect();
-        let moved: Vec<[f32; 3]> = source
-            .par_iter()
-            .map(|p| norm.to_unit(&(pose * Point3::from(p.coords * scale))))
-            .collect();
-        nearest_distances2(&build_tree(&unit_target), &moved)
-    })?;
-    let (fitness, rms) = inlier_stats_of(&d2, threshold * threshold);
-    Ok(Evaluation {
-        fitness,
-        inlier_rmse: rms * norm.scale,
-        inliers: (fitness * d2.len() as f64).round() as usize,
-        source_points: d2.len(),
-        max_distance,
-        source_left_out,
-        target_left_out,
+        nearest_distances2(&build_tree(&unit_target), moved)
     })
+}
+
+/// A source checked for [`evaluate_registration`] (and the models' `evaluate_registration`),
+/// with its transformation and distance: what is measured against any target.
+pub(crate) struct MovedSource<'a> {
+    source: std::borrow::Cow<'a, [Point3<f64>]>,
+    left_out: LeftOut,
+    pose: nalgebra::Isometry3<f64>,
+    scale: f64,
+    max_distance: f64,
+}
+
+impl<'a> MovedSource<'a> {
+    /// Checks `max_distance` (positive, finite), `transformation` (a finite similarity) and
+    /// `source` (its missing returns and stray points left out), in that order.
+    pub(crate) fn new(
+        source: &'a [Point3<f64>],
+        transformation: &Matrix4<f64>,
+        max_distance: f64,
+    ) -> Result<Self, Error> {
+        check::positive("max_distance", max_distance)?;
+        let (pose, scale) =
+            similarity_from_matrix(transformation).ok_or(Error::InvalidTransformation)?;
+        let (source, left_out) = usable(source, Role::Source, MIN_POINTS)?;
+        Ok(Self {
+            source,
+            left_out,
+            pose,
+            scale,
+            max_distance,
+        })
+    }
+
+    /// The figures against a target in the unit frame `norm` (the target's similarity into
+    /// it): `distances2` gives each moved source point's squared distance to the target in that
+    /// frame (run within the pool); the target's left-out counts are reported as given.
+    pub(crate) fn measured(
+        &self,
+        norm: &Normalization,
+        target_left_out: LeftOut,
+        distances2: impl FnOnce(&[[f32; 3]]) -> Vec<f32> + Send,
+    ) -> Result<Evaluation, Error> {
+        let d2 = in_pool(0, || {
+            let moved: Vec<[f32; 3]> = self
+                .source
+                .par_iter()
+                .map(|p| norm.to_unit(&(self.pose * Point3::from(p.coords * self.scale))))
+                .collect();
+            distances2(&moved)
+        })?;
+        let threshold = self.max_distance / norm.scale;
+        let (fitness, rms) = inlier_stats_of(&d2, threshold * threshold);
+        Ok(Evaluation {
+            fitness,
+            inlier_rmse: rms * norm.scale,
+            inliers: (fitness * d2.len() as f64).round() as usize,
+            source_points: d2.len(),
+            max_distance: self.max_distance,
+            source_left_out: self.left_out,
+            target_left_out,
+        })
+    }
 }
 
 #[cfg(test)]

@@ -1066,7 +1066,7 @@ def _model_from_bytes(data: bytes) -> SdfModel:
 
 def evaluate_registration(
     source: Union[npt.ArrayLike, _HasPoints],
-    target: Union[npt.ArrayLike, _HasPoints],
+    target: Union[npt.ArrayLike, _HasPoints, SdfModel, MeshModel],
     max_distance: float,
     transformation: Optional[npt.ArrayLike] = None,
 ) -> Evaluation:
@@ -1079,14 +1079,17 @@ def evaluate_registration(
 
     Args:
         source: (N, 3) points to move (array, Open3D ``PointCloud``, …).
-        target: (M, 3) points, fixed, the same units.
+        target: (M, 3) points, fixed, the same units; or an :class:`SdfModel` (against the
+            target points it was fitted to, :attr:`SdfModel.target_points`) or a
+            :class:`MeshModel` (each source point's exact distance to the mesh's faces).
         max_distance: A source point is an inlier when its nearest target point lies within
             this distance, in the clouds' units (metres for a LiDAR scan).
         transformation: 4×4 mapping source into target (``Registration.transformation``, rigid
             or a similarity ``[s R | t]``); None: the identity, the clouds as they are.
 
     Missing returns at (0, 0, 0) and stray points are left out of both clouds first, as
-    :func:`register` leaves them out (and warned the same way); every other point counts.
+    :func:`register` leaves them out (and warned the same way; a model's fit left out its
+    target's); every other point counts.
 
     Returns:
         The :class:`Evaluation`: ``fitness``, ``inlier_rmse``, ``inliers``, ``source_points``.
