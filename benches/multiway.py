@@ -15,6 +15,9 @@ Errors are each scan's pose against `gt_scan_to_world.txt`, relative to the firs
 replaces bun315 (`--foreign SCAN`: that scan) by a ModelNet chair scaled to the bunny's size
 (it must be left out). `--seen-from +z` gives `sdfreg.align` where the Stanford scanner stood in
 each scan's frame (far along +z), for its free-space check.
+Then, with no reference, how well each answer lays every placed scan on the others (the
+share of its points within 0.5, 1 and 2 mm of another placed scan's, and their RMS distance,
+as `Alignment.evaluate` measures it), beside the same figures of the reference's poses.
 Skips with a message when --data is missing.
 """
 
@@ -87,6 +90,18 @@ def open3d_multiway(scans: list[np.ndarray]) -> list[np.ndarray]:
     return [np.asarray(node.pose) for node in graph.nodes]
 
 
+def lies_on_others(scans: list[np.ndarray], poses: list, d: float) -> tuple[float, float, float]:
+    """Mean and lowest share of a placed scan's points within `d` of the other placed scans'
+    (each moved by its pose), and the mean RMS distance of those: `Alignment.evaluate`'s
+    figures, for any poses."""
+    placed = [k for k, p in enumerate(poses) if p is not None]
+    moved = {k: scans[k] @ poses[k][:3, :3].T + poses[k][:3, 3] for k in placed}
+    e = [sdfreg.evaluate_registration(moved[k], np.vstack([moved[j] for j in placed if j != k]), d)
+         for k in placed]
+    return (float(np.mean([x.fitness for x in e])), min(x.fitness for x in e),
+            float(np.mean([x.inlier_rmse for x in e])))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("../shared/data"))
@@ -148,6 +163,16 @@ def main() -> None:
         print(f"| {name} | " + " | ".join(cells) + " |")
     print("| worst | " + " | ".join(f"{w[0]:.3f}° / {w[1] * 1e3:.3f} mm" for w in worst.values()) + " |")
     print("| time | " + " | ".join(f"{t:.1f} s" for _, t in runs.values()) + " |")
+    # No reference: each answer's scans on each other, and the reference's (its scans only).
+    answers = {m: poses for m, (poses, _) in runs.items()}
+    answers["reference"] = [truth.get(n) for n in names]
+    print("\nEach placed scan on the others (mean share within d / lowest / mean RMS of those):")
+    print("| d | " + " | ".join(answers) + " |")
+    print("|---|" + "---|" * len(answers))
+    for d in (0.0005, 0.001, 0.002):
+        cells = [lies_on_others(scans, poses, d) for poses in answers.values()]
+        print(f"| {d * 1e3:.1f} mm | " + " | ".join(
+            f"{m:.4f} / {lo:.3f} / {rms * 1e3:.4f} mm" for m, lo, rms in cells) + " |")
 
 
 if __name__ == "__main__":

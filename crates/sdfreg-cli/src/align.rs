@@ -28,6 +28,12 @@ pub fn run(a: AlignArgs) -> Result<()> {
     {
         crate::refuse_overwrite(out, &inputs, a.force)?;
     }
+    if let Some(d) = a.max_distance.filter(|d| !(d.is_finite() && *d > 0.0)) {
+        bail!(
+            "--max-distance {}: must be a positive finite number (the scans' units)",
+            crate::args::shown(d)
+        );
+    }
     if a.common.scale {
         bail!(
             "--scale: align registers rigidly (the views of one scan campaign share their units)"
@@ -87,7 +93,34 @@ pub fn run(a: AlignArgs) -> Result<()> {
         eprintln!("sdfreg: {}: left out: {why}", a.scans[index[*k]].display());
     }
     let files: Vec<String> = a.scans.iter().map(|p| p.display().to_string()).collect();
-    let json = poses_file::poses_json(&alignment, &files, &index, &unreadable);
+    let mut json = poses_file::poses_json(&alignment, &files, &index, &unreadable);
+    if let Some(d) = a.max_distance {
+        let evaluations = alignment.evaluate(&scans, d)?;
+        for (k, e) in evaluations.iter().enumerate() {
+            if let Some(e) = e {
+                json["scans"][index[k]]["evaluation"] = serde_json::json!({
+                    "max_distance": e.max_distance,
+                    "fitness": e.fitness,
+                    "inlier_rmse": e.inlier_rmse,
+                    "inliers": e.inliers,
+                    "source_points": e.source_points,
+                });
+            }
+        }
+        let measured: Vec<(usize, f64)> = evaluations
+            .iter()
+            .enumerate()
+            .filter_map(|(k, e)| e.map(|e| (k, e.fitness)))
+            .collect();
+        if let Some(&(worst, lowest)) = measured.iter().min_by(|x, y| x.1.total_cmp(&y.1)) {
+            eprintln!(
+                "sdfreg: within {} of the other scans: {:.3} of a scan's points on average, lowest {lowest:.3} ({})",
+                crate::args::shown(d),
+                measured.iter().map(|m| m.1).sum::<f64>() / measured.len() as f64,
+                a.scans[index[worst]].display(),
+            );
+        }
+    }
     std::fs::write(&a.output, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("{}", a.output.display()))?;
     if a.save_model.is_some() || a.mesh.is_some() {

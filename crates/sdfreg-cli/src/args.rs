@@ -452,6 +452,12 @@ pub struct AlignArgs {
     /// See --seen-from: the share of a scan's points (of those facing a return of the other).
     #[arg(long, default_value_t = 0.02)]
     pub max_in_free_space: f64,
+    /// Also measure, with no reference, how well each aligned scan lies on the others: the
+    /// share of its points within this distance of another scan's point, in the scans' units,
+    /// and their RMS distance (as `sdfreg fitness`), written per scan as `evaluation` and
+    /// summed up on stderr.
+    #[arg(long, value_name = "DISTANCE")]
+    pub max_distance: Option<f64>,
     /// Overwrite --output, --save-model and --mesh if they exist.
     #[arg(long)]
     pub force: bool,

@@ -1134,13 +1134,17 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         .arg(&model)
         .arg("--mesh")
         .arg(&mesh)
-        .args(["--mesh-resolution", "48"])
+        .args(["--mesh-resolution", "48", "--max-distance", "0.02"])
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(3), "{err}");
     assert!(
         err.contains("broken.xyz: left out") && err.contains("broken.xyz:2: expected three"),
+        "{err}"
+    );
+    assert!(
+        err.contains("sdfreg: within 0.02 of the other scans: "),
         "{err}"
     );
     let text = std::fs::read_to_string(&poses).unwrap();
@@ -1161,7 +1165,13 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         let err = (m - t.to_homogeneous()).amax();
         assert!(err < 0.01, "scan {k}: {m} vs {}", t.to_homogeneous());
         assert!(scans[k]["fitness"].as_f64().unwrap() > 0.5);
+        // --max-distance: how well the view lies on the other two, as evaluate_registration.
+        let e = &scans[k]["evaluation"];
+        assert_eq!(e["max_distance"], 0.02);
+        assert!(e["fitness"].as_f64().unwrap() > 0.8, "{e}");
+        assert!(e["inlier_rmse"].as_f64().unwrap() < 0.02, "{e}");
     }
+    assert!(scans[2].get("evaluation").is_none());
     assert!(!v["edges"].as_array().unwrap().is_empty());
     assert!(v["stage_ms"]["pairs"].as_f64().unwrap() > 0.0);
     assert_eq!(
@@ -1224,6 +1234,20 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         let m = again[k].unwrap().to_homogeneous();
         assert!((m - t.to_homogeneous()).amax() < 0.01, "scan {k}: {m}");
     }
+    // A bad --max-distance is refused before any registration, naming the flag.
+    let out = sdfreg()
+        .current_dir(dir.path())
+        .args(["align", "view_0.ply", "view_1.ply", "-o", "bad.json"])
+        .arg("--max-distance=-1")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--max-distance -1: must be a positive finite number"),
+        "{err}"
+    );
+    assert!(!dir.path().join("bad.json").exists());
     // The merged model loads, and its mesh is a surface.
     assert!(sdfreg_core::SdfModel::load(&model).is_ok());
     let (vertices, triangles) = sdfreg_core::io::read_mesh(&mesh).unwrap();

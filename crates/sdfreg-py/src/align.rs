@@ -11,6 +11,7 @@ use sdfreg_core::views::poses_file;
 
 use crate::convert;
 use crate::error;
+use crate::evaluate::PyEvaluation;
 use crate::model::PySdfModel;
 use crate::registration::PyRegistration;
 use crate::settings::{Caller, SettingsArgs};
@@ -80,12 +81,7 @@ pub fn align<'py>(
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<PyAlignment> {
     let seen_from = seen_from.map(seen_from_arg).transpose()?;
-    let scans: Vec<Vec<nalgebra::Point3<f64>>> = scans
-        .try_iter()
-        .map_err(|_| error::argument("scans", "expected a sequence of (N, 3) arrays"))?
-        .enumerate()
-        .map(|(k, s)| convert::points(&s?, &format!("scans[{k}]")))
-        .collect::<PyResult<_>>()?;
+    let scans = scan_list(scans)?;
     let init = init
         .map(|poses| -> PyResult<Vec<Option<nalgebra::Isometry3<f64>>>> {
             poses
@@ -142,6 +138,16 @@ pub fn align<'py>(
         alignment,
         model: Arc::new(model),
     })
+}
+
+/// `scans`: a sequence of (N, 3) clouds (`ValueError` naming `scans` or `scans[k]`).
+fn scan_list(scans: &Bound<'_, PyAny>) -> PyResult<Vec<Vec<nalgebra::Point3<f64>>>> {
+    scans
+        .try_iter()
+        .map_err(|_| error::argument("scans", "expected a sequence of (N, 3) arrays"))?
+        .enumerate()
+        .map(|(k, s)| convert::points(&s?, &format!("scans[{k}]")))
+        .collect()
 }
 
 /// `seen_from=`: a string (`"origin"`, `"+z"`, `"1,0,0"`) or three numbers.
@@ -269,6 +275,47 @@ impl PyAlignment {
             d.set_item(name, v.as_secs_f64())?;
         }
         Ok(d)
+    }
+
+    // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+    /// How well each placed scan lies on the others once aligned, with no reference: per scan,
+    /// :func:`evaluate_registration` of the scan, moved by its pose, against all the other
+    /// placed scans in the anchor's frame (those whose bounding boxes come within
+    /// ``max_distance``), with missing returns and stray points left out of each.
+    ///
+    /// A scan's parts that no other scan saw count against its fitness: compare the figures
+    /// with those of other poses of the same scans (a reference's, another tool's), not with 1.
+    ///
+    /// Args:
+    ///     scans: The scans given to :func:`align`, in the same order.
+    ///     max_distance: A point is an inlier when another scan's point lies within this
+    ///         distance, in the scans' units.
+    ///
+    /// Returns:
+    ///     Per scan, an :class:`Evaluation`, or None for a scan left out.
+    ///
+    /// Raises:
+    ///     ValueError: ``scans`` are not as many as the alignment's, or one is not an (N, 3)
+    ///         float array; ``max_distance`` is not positive and finite.
+    fn evaluate(
+        &self,
+        py: Python<'_>,
+        scans: &Bound<'_, PyAny>,
+        max_distance: f64,
+    ) -> PyResult<Vec<Option<PyEvaluation>>> {
+        let scans = scan_list(scans)?;
+        let evaluations = py
+            .detach(|| self.alignment.evaluate(&scans, max_distance))
+            .map_err(|e| match e {
+                sdfreg_core::Error::InvalidSetting { name, reason } => {
+                    error::argument(name, reason)
+                }
+                e => error::registration(e),
+            })?;
+        Ok(evaluations
+            .into_iter()
+            .map(|e| e.map(PyEvaluation))
+            .collect())
     }
 
     // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.

@@ -55,6 +55,23 @@ def test_partial_views_align_and_a_foreign_view_is_left_out(tmp_path: Path) -> N
     assert all(2 not in (e["source"], e["target"]) for e in kept)
     assert set(a.stage_times_s) == {"models", "pairs", "graph", "unplaced", "consensus", "joint"}
     assert a.consensus["iterations"] == 0 and a.stage_times_s["consensus"] < 0.01
+    # Each placed view against the others, no reference: the same figures as
+    # evaluate_registration of the view against the others moved by their poses; the box None.
+    evaluations = a.evaluate(scans, 0.02)
+    assert evaluations[2] is None
+    for k in (0, 1, 3, 4):
+        others = np.vstack([scans[j] @ a.poses[j][:3, :3].T + a.poses[j][:3, 3] for j in (0, 1, 3, 4) if j != k])
+        e = sdfreg.evaluate_registration(scans[k], others, 0.02, a.poses[k])
+        got = evaluations[k]
+        assert (got.fitness, got.inliers, got.source_points) == (e.fitness, e.inliers, e.source_points)
+        assert abs(got.inlier_rmse - e.inlier_rmse) < 1e-9 and got.fitness > 0.8
+    # A view moved 0.05 off its pose lies on the others far less.
+    assert evaluations[1].fitness - 0.3 > sdfreg.evaluate_registration(
+        scans[1] + [0.05, 0, 0], np.vstack([scans[j] @ a.poses[j][:3, :3].T + a.poses[j][:3, 3] for j in (0, 3, 4)]), 0.02, a.poses[1]).fitness
+    with pytest.raises(ValueError, match="scans: 4 scans for an alignment of 5"):
+        a.evaluate(scans[:4], 0.02)
+    with pytest.raises(ValueError, match="max_distance: must be a positive finite number"):
+        a.evaluate(scans, 0.0)
     # One model of them all: every placed view lies on it.
     moved = scans[1] @ a.poses[1][:3, :3].T + a.poses[1][:3, 3]
     assert np.median(np.abs(a.model.distance(moved))) < 0.01

@@ -44,12 +44,14 @@ use nalgebra::{Isometry3, Point3};
 use rayon::prelude::*;
 
 use crate::base::check;
-use crate::base::error::Error;
+use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::batch::pairs::{register_many, Pair, PairTarget};
+use crate::geometry::cloud::{usable, LeftOut};
 use crate::model::sdf_model::SdfModel;
+use crate::pipeline::evaluate::{evaluate_registration, Evaluation};
 use crate::pipeline::registration::Registration;
-use crate::pipeline::settings::RegisterSettings;
+use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::views::consensus::{consensus, ConsensusOutcome, ConsensusSettings};
 use crate::views::free_space::{edge_in_free_space, DepthMap, SeenFrom};
 use crate::views::graph::{optimise_robust, GraphEdge};
@@ -300,6 +302,113 @@ impl Alignment {
     ) -> Result<SdfModel, Error> {
         SdfModel::fit(&self.merged(scans), settings)
     }
+
+    /// How well each placed scan lies on the others once aligned, with no reference: per scan,
+    /// [`crate::evaluate_registration`] of the scan, moved by its pose, against every other
+    /// placed scan in the anchor's frame, at `max_distance` (the scans' units). `None` for a
+    /// scan left out. `scans` are the scans given to [`align`], in that order. Only the scans
+    /// whose bounding boxes come within `max_distance` of a scan's are measured against it
+    /// (the others cannot hold a point that near); each scan costs a k-d tree of those.
+    ///
+    /// # Errors
+    /// `scans` not as many as the poses; `max_distance` not positive and finite.
+    pub fn evaluate(
+        &self,
+        scans: &[Vec<Point3<f64>>],
+        max_distance: f64,
+    ) -> Result<Vec<Option<Evaluation>>, Error> {
+        if scans.len() != self.poses.len() {
+            return Err(Error::InvalidSetting {
+                name: "scans",
+                reason: format!(
+                    "{} scans for an alignment of {}",
+                    scans.len(),
+                    self.poses.len()
+                ),
+            });
+        }
+        check::positive("max_distance", max_distance)?;
+        // Each placed scan without its missing returns and stray points (as a registration
+        // leaves them out), moved into the anchor's frame, with its bounding box there grown by
+        // `max_distance`.
+        let placed: Vec<Option<Placed>> = scans
+            .iter()
+            .zip(&self.poses)
+            .map(|(scan, pose)| {
+                let Some(pose) = pose else {
+                    return Ok(None);
+                };
+                let (points, left_out) = usable(scan, Role::Source, MIN_POINTS)?;
+                let moved: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
+                let lo = moved
+                    .iter()
+                    .fold(Point3::from([f64::MAX; 3]), |a, p| a.inf(p));
+                let hi = moved
+                    .iter()
+                    .fold(Point3::from([f64::MIN; 3]), |a, p| a.sup(p));
+                Ok(Some(Placed {
+                    moved,
+                    left_out,
+                    lo: lo.map(|v| v - max_distance),
+                    hi: hi.map(|v| v + max_distance),
+                }))
+            })
+            .collect::<Result<_, Error>>()?;
+        let near =
+            |a: &Placed, b: &Placed| (0..3).all(|i| a.lo[i] <= b.hi[i] && b.lo[i] <= a.hi[i]);
+        (0..scans.len())
+            .map(|k| {
+                let Some(own) = &placed[k] else {
+                    return Ok(None);
+                };
+                let others: Vec<&Placed> = (0..scans.len())
+                    .filter(|&j| j != k)
+                    .filter_map(|j| placed[j].as_ref().filter(|p| near(own, p)))
+                    .collect();
+                let target: Vec<Point3<f64>> = others
+                    .iter()
+                    .flat_map(|p| p.moved.iter().copied())
+                    .collect();
+                let target_left_out = others.iter().fold(LeftOut::default(), |sum, p| LeftOut {
+                    missing_returns: sum.missing_returns + p.left_out.missing_returns,
+                    stray: sum.stray + p.left_out.stray,
+                });
+                let mut e = if target.is_empty() {
+                    // No other scan comes near: none of this one's points lies on them.
+                    Evaluation {
+                        fitness: 0.0,
+                        inlier_rmse: 0.0,
+                        inliers: 0,
+                        source_points: own.moved.len(),
+                        max_distance,
+                        source_left_out: own.left_out,
+                        target_left_out,
+                    }
+                } else {
+                    evaluate_registration(
+                        &own.moved,
+                        &target,
+                        &nalgebra::Matrix4::identity(),
+                        max_distance,
+                    )?
+                };
+                e.source_left_out = own.left_out;
+                e.target_left_out = target_left_out;
+                Ok(Some(e))
+            })
+            .collect()
+    }
+}
+
+/// A placed scan as [`Alignment::evaluate`] measures it.
+struct Placed {
+    /// Its points, but those left out, in the anchor's frame.
+    moved: Vec<Point3<f64>>,
+    /// The points left out.
+    left_out: LeftOut,
+    /// Its bounding box there, grown by the distance evaluated at.
+    lo: Point3<f64>,
+    hi: Point3<f64>,
 }
 
 /// The placed scans' points in the common frame, but scan `except`.
@@ -1204,6 +1313,59 @@ mod tests {
     use crate::geometry::se3::{exp_se3, pose_errors};
     use nalgebra::{Vector3, Vector6};
     use rand::SeedableRng;
+
+    /// An alignment of `poses` alone (what [`Alignment::evaluate`] reads).
+    fn placed_at(poses: Vec<Option<Isometry3<f64>>>) -> Alignment {
+        Alignment {
+            anchor: 0,
+            fitness: vec![0.0; poses.len()],
+            poses,
+            left_out: Vec::new(),
+            edges: Vec::new(),
+            consensus: ConsensusOutcome::default(),
+            times: AlignTimes::default(),
+            time: Duration::ZERO,
+        }
+    }
+
+    #[test]
+    fn evaluate_measures_each_placed_scan_against_the_others_near_it() {
+        // A 20 × 20 grid (spacing 0.1) on z = 0 as scan 0; scan 1 the same grid 3 cm above in
+        // its own frame, placed by a pose 3 cm down (so on scan 0), and in scan 1's frame shifted
+        // 1 cm more: 1 cm off scan 0; scan 2 left out; scan 3 far away.
+        let grid: Vec<Point3<f64>> = (0..400)
+            .map(|i| Point3::new((i % 20) as f64 * 0.1, (i / 20) as f64 * 0.1, 0.0))
+            .collect();
+        let up =
+            |dz: f64| -> Vec<Point3<f64>> { grid.iter().map(|p| p + Vector3::z() * dz).collect() };
+        let down = |dz: f64| Some(Isometry3::translation(0.0, 0.0, -dz));
+        let scans = vec![grid.clone(), up(0.04), grid.clone(), up(100.0)];
+        let a = placed_at(vec![down(0.0), down(0.03), None, down(0.0)]);
+        let e = a.evaluate(&scans, 0.02).unwrap();
+        assert!(e[2].is_none());
+        let (e0, e1, e3) = (e[0].unwrap(), e[1].unwrap(), e[3].unwrap());
+        assert_eq!((e0.fitness, e0.inliers, e0.source_points), (1.0, 400, 400));
+        assert!((e0.inlier_rmse - 0.01).abs() < 1e-5, "{}", e0.inlier_rmse);
+        assert_eq!(e1.fitness, 1.0);
+        assert!((e1.inlier_rmse - 0.01).abs() < 1e-5, "{}", e1.inlier_rmse);
+        // Nothing near the far scan: measured against no points, 0.
+        assert_eq!((e3.fitness, e3.inliers, e3.source_points), (0.0, 0, 400));
+        // At 5 mm no point of 0 or 1 is on the other.
+        let tight = a.evaluate(&scans, 0.005).unwrap();
+        assert_eq!(tight[0].unwrap().fitness, 0.0);
+        // Refused: scans not as many as the poses, a distance that is not positive.
+        assert!(matches!(
+            a.evaluate(&scans[..3], 0.02),
+            Err(Error::InvalidSetting { name: "scans", .. })
+        ));
+        assert!(matches!(
+            a.evaluate(&scans, 0.0),
+            Err(Error::InvalidSetting {
+                name: "max_distance",
+                ..
+            })
+        ));
+    }
 
     /// Six scans of a blob at known poses, and edges between them that are copies of one real
     /// registration, each with the pose and fitness a test gives it.

@@ -9,7 +9,9 @@
 //! - `"scans"`: per input scan, in the order given, `"file"` (its name), `"transformation"` (the
 //!   4×4 as row-major nested lists; `null` for a scan left out, with `"left_out"` saying why) and
 //!   `"fitness"` (the best fitness of a kept edge it is part of; absent for a scan that could
-//!   not be read);
+//!   not be read), and with `sdfreg align --max-distance` its `"evaluation"` (how well it lies on
+//!   the others: [`crate::Alignment::evaluate`]'s `"fitness"`, `"inlier_rmse"`, `"inliers"`,
+//!   `"source_points"`, `"max_distance"`);
 //! - `"edges"`: every pairwise registration tried, `"target"`, `"source"` (names), `"fitness"`,
 //!   `"kept"` (whether the pose graph kept it), `"transformation"` (source into target) or
 //!   `"error"`, and `"in_free_space"` when that check ran;

@@ -817,6 +817,29 @@ class Alignment:
     def stage_times_s(self) -> Dict[str, float]:
         """Each stage's wall time, seconds: ``models``, ``pairs``, ``graph``, ``unplaced``,
         ``consensus``, ``joint``."""
+    def evaluate(
+        self, scans: Iterable[npt.ArrayLike], max_distance: float
+    ) -> List[Optional[Evaluation]]:
+        """How well each placed scan lies on the others once aligned, with no reference: per scan,
+        :func:`evaluate_registration` of the scan, moved by its pose, against all the other
+        placed scans in the anchor's frame (those whose bounding boxes come within
+        ``max_distance``), with missing returns and stray points left out of each.
+
+        A scan's parts that no other scan saw count against its fitness: compare the figures
+        with those of other poses of the same scans (a reference's, another tool's), not with 1.
+
+        Args:
+            scans: The scans given to :func:`align`, in the same order.
+            max_distance: A point is an inlier when another scan's point lies within this
+                distance, in the scans' units.
+
+        Returns:
+            Per scan, an :class:`Evaluation`, or None for a scan left out.
+
+        Raises:
+            ValueError: ``scans`` are not as many as the alignment's, or one is not an (N, 3)
+                float array; ``max_distance`` is not positive and finite.
+        """
     def to_json(self, files: Optional[List[str]] = None) -> str:
         """The poses file of this alignment, as ``sdfreg align --output poses.json`` writes it
         (``format`` ``"sdfreg-poses"``; per scan ``file``, ``transformation`` or null,
