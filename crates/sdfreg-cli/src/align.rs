@@ -98,13 +98,7 @@ pub fn run(a: AlignArgs) -> Result<()> {
         let evaluations = alignment.evaluate(&scans, d)?;
         for (k, e) in evaluations.iter().enumerate() {
             if let Some(e) = e {
-                json["scans"][index[k]]["evaluation"] = serde_json::json!({
-                    "max_distance": e.max_distance,
-                    "fitness": e.fitness,
-                    "inlier_rmse": e.inlier_rmse,
-                    "inliers": e.inliers,
-                    "source_points": e.source_points,
-                });
+                json["scans"][index[k]]["evaluation"] = crate::evaluation_json(e);
             }
         }
         let measured: Vec<(usize, f64)> = evaluations

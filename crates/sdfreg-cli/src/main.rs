@@ -346,18 +346,25 @@ fn cmd_fitness(a: FitnessArgs) -> Result<()> {
         e.inlier_rmse
     );
     if let Some(out) = &a.output {
-        let json = serde_json::json!({
-            "fitness": e.fitness,
-            "inlier_rmse": e.inlier_rmse,
-            "inliers": e.inliers,
-            "source_points": e.source_points,
-            "max_distance": e.max_distance,
-            "points_left_out": {"source": e.source_left_out, "target": e.target_left_out},
-        });
+        let mut json = evaluation_json(&e);
+        json["points_left_out"] =
+            serde_json::json!({"source": e.source_left_out, "target": e.target_left_out});
         std::fs::write(out, serde_json::to_string_pretty(&json)? + "\n")
             .with_context(|| out.display().to_string())?;
     }
     Ok(())
+}
+
+/// An [`sdfreg_core::Evaluation`]'s figures as JSON (`fitness`, `inlier_rmse`, `inliers`,
+/// `source_points`, `max_distance`): `fitness --output` and each scan of `align --max-distance`.
+fn evaluation_json(e: &sdfreg_core::Evaluation) -> serde_json::Value {
+    serde_json::json!({
+        "fitness": e.fitness,
+        "inlier_rmse": e.inlier_rmse,
+        "inliers": e.inliers,
+        "source_points": e.source_points,
+        "max_distance": e.max_distance,
+    })
 }
 
 /// A 4×4 mapping source into target: `register --output`'s JSON (its `transformation`) when the

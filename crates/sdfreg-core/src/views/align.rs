@@ -47,7 +47,7 @@ use crate::base::check;
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::batch::pairs::{register_many, Pair, PairTarget};
-use crate::geometry::cloud::{usable, LeftOut};
+use crate::geometry::cloud::{bounding_box, usable, LeftOut};
 use crate::model::sdf_model::SdfModel;
 use crate::pipeline::evaluate::{evaluate_registration, Evaluation};
 use crate::pipeline::registration::Registration;
@@ -340,12 +340,7 @@ impl Alignment {
                 };
                 let (points, left_out) = usable(scan, Role::Source, MIN_POINTS)?;
                 let moved: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
-                let lo = moved
-                    .iter()
-                    .fold(Point3::from([f64::MAX; 3]), |a, p| a.inf(p));
-                let hi = moved
-                    .iter()
-                    .fold(Point3::from([f64::MIN; 3]), |a, p| a.sup(p));
+                let (lo, hi) = bounding_box(&moved).expect("usable leaves points");
                 Ok(Some(Placed {
                     moved,
                     left_out,
@@ -373,7 +368,7 @@ impl Alignment {
                     missing_returns: sum.missing_returns + p.left_out.missing_returns,
                     stray: sum.stray + p.left_out.stray,
                 });
-                let mut e = if target.is_empty() {
+                let e = if target.is_empty() {
                     // No other scan comes near: none of this one's points lies on them.
                     Evaluation {
                         fitness: 0.0,
@@ -385,15 +380,18 @@ impl Alignment {
                         target_left_out,
                     }
                 } else {
-                    evaluate_registration(
-                        &own.moved,
-                        &target,
-                        &nalgebra::Matrix4::identity(),
-                        max_distance,
-                    )?
+                    // Measured on the points kept: the counts are each scan's own.
+                    Evaluation {
+                        source_left_out: own.left_out,
+                        target_left_out,
+                        ..evaluate_registration(
+                            &own.moved,
+                            &target,
+                            &nalgebra::Matrix4::identity(),
+                            max_distance,
+                        )?
+                    }
                 };
-                e.source_left_out = own.left_out;
-                e.target_left_out = target_left_out;
                 Ok(Some(e))
             })
             .collect()
