@@ -18,6 +18,7 @@
 //!     cargo bench --bench views -- --reverse         # the loop the other way round (view 7 second)
 //!     cargo bench --bench views -- --draws 12        # draws 0..11 of the noise, and their means
 //!     cargo bench --bench views -- --seen-from origin   # with the free-space check
+//!     cargo bench --bench views -- --views 100 --evaluate-truth 0.01  # Alignment::evaluate's cost
 //!
 //! `--reference-consensus DATA` instead starts the multi-view refinement
 //! (`sdfreg_core::views::consensus`) from the Stanford bunny's reference poses
@@ -64,6 +65,9 @@ fn main() {
         seen_from: arg("--seen-from").map(|v| v.parse().expect("--seen-from origin|+z|x,y,z")),
         ..Default::default()
     };
+    if let Some(d) = arg("--evaluate-truth") {
+        return evaluate_truth(views, &sensor, d.parse().expect("--evaluate-truth METRES"));
+    }
     let first: u64 = arg("--noise-draw").map_or(0, |v| v.parse().expect("--noise-draw N"));
     let draws: u64 = arg("--draws").map_or(1, |v| v.parse().expect("--draws N"));
     let runs: Vec<Run> = (first..first + draws.max(1))
@@ -77,6 +81,35 @@ fn main() {
     if runs.len() > 1 {
         summary(&runs);
     }
+}
+
+/// Times `Alignment::evaluate` of the loop's scans at the simulator's exact poses, within
+/// `max_distance` metres, and prints each view's fitness / inlier RMSE (mm).
+fn evaluate_truth(views: usize, sensor: &Sensor, max_distance: f64) {
+    let (scans, truth) = room_loop_seeded(views, sensor, 0);
+    let a = sdfreg_core::Alignment {
+        anchor: 0,
+        fitness: vec![0.0; views],
+        poses: truth.iter().map(|t| Some(truth[0].inverse() * t)).collect(),
+        left_out: Vec::new(),
+        edges: Vec::new(),
+        consensus: Default::default(),
+        times: Default::default(),
+        time: std::time::Duration::ZERO,
+    };
+    let clock = std::time::Instant::now();
+    let evaluations = a.evaluate(&scans, max_distance).expect("evaluated");
+    let time = clock.elapsed().as_secs_f64();
+    let points: usize = scans.iter().map(Vec::len).sum();
+    let figures: Vec<String> = evaluations
+        .iter()
+        .flatten()
+        .map(|e| format!("{:.5}/{:.4}", e.fitness, e.inlier_rmse * 1e3))
+        .collect();
+    println!(
+        "evaluate {views} views at the truth ({points} points) within {max_distance} m: {time:.2} s"
+    );
+    println!("fitness / inlier RMSE (mm) per view: {}", figures.join(" "));
 }
 
 /// One alignment's figures against the truth, per view (the anchor's included): the aligned

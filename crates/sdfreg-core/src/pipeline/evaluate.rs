@@ -117,17 +117,38 @@ impl<'a> MovedSource<'a> {
                 .collect();
             distances2(&moved)
         })?;
-        let threshold = self.max_distance / norm.scale;
-        let (fitness, rms) = inlier_stats_of(&d2, threshold * threshold);
-        Ok(Evaluation {
+        Ok(Evaluation::from_distances2(
+            &d2,
+            norm.scale,
+            self.max_distance,
+            self.left_out,
+            target_left_out,
+        ))
+    }
+}
+
+impl Evaluation {
+    /// The figures from each counted source point's squared distance to the target, `d2`, in
+    /// a unit frame whose unit is `scale` user units (`f32::INFINITY` for a point with no target
+    /// point near); `max_distance` in user units.
+    pub(crate) fn from_distances2(
+        d2: &[f32],
+        scale: f64,
+        max_distance: f64,
+        source_left_out: LeftOut,
+        target_left_out: LeftOut,
+    ) -> Self {
+        let threshold = max_distance / scale;
+        let (fitness, rms) = inlier_stats_of(d2, threshold * threshold);
+        Self {
             fitness,
-            inlier_rmse: rms * norm.scale,
+            inlier_rmse: rms * scale,
             inliers: (fitness * d2.len() as f64).round() as usize,
             source_points: d2.len(),
-            max_distance: self.max_distance,
-            source_left_out: self.left_out,
+            max_distance,
+            source_left_out,
             target_left_out,
-        })
+        }
     }
 }
 

@@ -47,9 +47,10 @@ use crate::base::check;
 use crate::base::error::{Error, Role};
 use crate::base::pool::in_pool;
 use crate::batch::pairs::{register_many, Pair, PairTarget};
-use crate::geometry::cloud::{bounding_box, usable, LeftOut};
+use crate::geometry::cloud::{bounding_box, usable, LeftOut, Normalization};
+use crate::geometry::tree::{nearest_in_others, UnitBox, SEARCH_BOUND_MARGIN};
 use crate::model::sdf_model::SdfModel;
-use crate::pipeline::evaluate::{evaluate_registration, Evaluation};
+use crate::pipeline::evaluate::Evaluation;
 use crate::pipeline::registration::Registration;
 use crate::pipeline::settings::{RegisterSettings, MIN_POINTS};
 use crate::views::consensus::{consensus, ConsensusOutcome, ConsensusSettings};
@@ -306,9 +307,15 @@ impl Alignment {
     /// How well each placed scan lies on the others once aligned, with no reference: per scan,
     /// [`crate::evaluate_registration`] of the scan, moved by its pose, against every other
     /// placed scan in the anchor's frame, at `max_distance` (the scans' units). `None` for a
-    /// scan left out. `scans` are the scans given to [`align`], in that order. Only the scans
-    /// whose bounding boxes come within `max_distance` of a scan's are measured against it
-    /// (the others cannot hold a point that near); each scan costs a k-d tree of those.
+    /// scan left out. `scans` are the scans given to [`align`], in that order.
+    ///
+    /// Each scan's missing returns and stray points are left out of it, as a registration
+    /// leaves them out; the target's left-out counts are those of the other scans whose
+    /// bounding boxes come within `max_distance` of the scan's (no other scan can hold a point
+    /// that near). The distances are measured in one unit frame for all the scans (f32, as
+    /// [`crate::evaluate_registration`] measures them in the target's), so a figure may differ
+    /// from that call's in the last digits. Exact nearest points, at about `log₂ n` k-d tree
+    /// look-ups per point for `n` scans.
     ///
     /// # Errors
     /// `scans` not as many as the poses; `max_distance` not positive and finite.
@@ -329,72 +336,64 @@ impl Alignment {
         }
         check::positive("max_distance", max_distance)?;
         // Each placed scan without its missing returns and stray points (as a registration
-        // leaves them out), moved into the anchor's frame, with its bounding box there grown by
-        // `max_distance`.
-        let placed: Vec<Option<Placed>> = scans
-            .iter()
-            .zip(&self.poses)
-            .map(|(scan, pose)| {
-                let Some(pose) = pose else {
-                    return Ok(None);
-                };
-                let (points, left_out) = usable(scan, Role::Source, MIN_POINTS)?;
-                let moved: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
-                let (lo, hi) = bounding_box(&moved).expect("usable leaves points");
-                Ok(Some(Placed {
+        // leaves them out), moved into the anchor's frame, with its bounding box there.
+        let mut placed: Vec<(usize, Placed)> = Vec::new();
+        for (k, (scan, pose)) in scans.iter().zip(&self.poses).enumerate() {
+            let Some(pose) = pose else { continue };
+            let (points, left_out) = usable(scan, Role::Source, MIN_POINTS)?;
+            let moved: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
+            let (lo, hi) = bounding_box(&moved).expect("usable leaves points");
+            placed.push((
+                k,
+                Placed {
                     moved,
                     left_out,
-                    lo: lo.map(|v| v - max_distance),
-                    hi: hi.map(|v| v + max_distance),
-                }))
-            })
-            .collect::<Result<_, Error>>()?;
-        let near =
-            |a: &Placed, b: &Placed| (0..3).all(|i| a.lo[i] <= b.hi[i] && b.lo[i] <= a.hi[i]);
-        (0..scans.len())
-            .map(|k| {
-                let Some(own) = &placed[k] else {
-                    return Ok(None);
-                };
-                let others: Vec<&Placed> = (0..scans.len())
-                    .filter(|&j| j != k)
-                    .filter_map(|j| placed[j].as_ref().filter(|p| near(own, p)))
-                    .collect();
-                let target: Vec<Point3<f64>> = others
-                    .iter()
-                    .flat_map(|p| p.moved.iter().copied())
-                    .collect();
-                let target_left_out = others.iter().fold(LeftOut::default(), |sum, p| LeftOut {
+                    lo,
+                    hi,
+                },
+            ));
+        }
+        let mut evaluations = vec![None; scans.len()];
+        let Some((lo, hi)) = placed
+            .iter()
+            .map(|(_, p)| (p.lo, p.hi))
+            .reduce(|a, b| (a.0.inf(&b.0), a.1.sup(&b.1)))
+        else {
+            return Ok(evaluations);
+        };
+        // One unit frame for all (that of the box of them all), each scan's points and box in it.
+        let norm = Normalization::from_target(&[lo, hi])?;
+        let unit: Vec<Vec<[f32; 3]>> = placed
+            .iter()
+            .map(|(_, p)| p.moved.par_iter().map(|x| norm.to_unit(x)).collect())
+            .collect();
+        let boxes: Vec<UnitBox> = placed
+            .iter()
+            .map(|(_, p)| (norm.to_unit(&p.lo), norm.to_unit(&p.hi)))
+            .collect();
+        // A little beyond the distance, so that f32 rounding leaves no inlier unsearched.
+        let reach = (max_distance / norm.scale * (1.0 + SEARCH_BOUND_MARGIN)) as f32;
+        let d2 = in_pool(0, || nearest_in_others(&unit, &boxes, reach))?;
+        let near = |a: &Placed, b: &Placed| {
+            (0..3).all(|i| a.lo[i] - max_distance <= b.hi[i] && b.lo[i] <= a.hi[i] + max_distance)
+        };
+        for ((k, own), d2) in placed.iter().zip(&d2) {
+            let target_left_out = placed
+                .iter()
+                .filter(|(j, other)| j != k && near(own, other))
+                .fold(LeftOut::default(), |sum, (_, p)| LeftOut {
                     missing_returns: sum.missing_returns + p.left_out.missing_returns,
                     stray: sum.stray + p.left_out.stray,
                 });
-                let e = if target.is_empty() {
-                    // No other scan comes near: none of this one's points lies on them.
-                    Evaluation {
-                        fitness: 0.0,
-                        inlier_rmse: 0.0,
-                        inliers: 0,
-                        source_points: own.moved.len(),
-                        max_distance,
-                        source_left_out: own.left_out,
-                        target_left_out,
-                    }
-                } else {
-                    // Measured on the points kept: the counts are each scan's own.
-                    Evaluation {
-                        source_left_out: own.left_out,
-                        target_left_out,
-                        ..evaluate_registration(
-                            &own.moved,
-                            &target,
-                            &nalgebra::Matrix4::identity(),
-                            max_distance,
-                        )?
-                    }
-                };
-                Ok(Some(e))
-            })
-            .collect()
+            evaluations[*k] = Some(Evaluation::from_distances2(
+                d2,
+                norm.scale,
+                max_distance,
+                own.left_out,
+                target_left_out,
+            ));
+        }
+        Ok(evaluations)
     }
 }
 
@@ -404,7 +403,7 @@ struct Placed {
     moved: Vec<Point3<f64>>,
     /// The points left out.
     left_out: LeftOut,
-    /// Its bounding box there, grown by the distance evaluated at.
+    /// Its bounding box there.
     lo: Point3<f64>,
     hi: Point3<f64>,
 }
