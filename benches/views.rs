@@ -18,6 +18,7 @@
 //!     cargo bench --bench views -- --reverse         # the loop the other way round (view 7 second)
 //!     cargo bench --bench views -- --draws 12        # draws 0..11 of the noise, and their means
 //!     cargo bench --bench views -- --seen-from origin   # with the free-space check
+//!     cargo bench --bench views -- --evaluate 0.01   # the no-reference measure, aligned and exact
 //!     cargo bench --bench views -- --views 100 --evaluate-truth 0.01  # Alignment::evaluate's cost
 //!
 //! `--reference-consensus DATA` instead starts the multi-view refinement
@@ -87,16 +88,7 @@ fn main() {
 /// `max_distance` metres, and prints each view's fitness / inlier RMSE (mm).
 fn evaluate_truth(views: usize, sensor: &Sensor, max_distance: f64) {
     let (scans, truth) = room_loop_seeded(views, sensor, 0);
-    let a = sdfreg_core::Alignment {
-        anchor: 0,
-        fitness: vec![0.0; views],
-        poses: truth.iter().map(|t| Some(truth[0].inverse() * t)).collect(),
-        left_out: Vec::new(),
-        edges: Vec::new(),
-        consensus: Default::default(),
-        times: Default::default(),
-        time: std::time::Duration::ZERO,
-    };
+    let a = at_truth(&truth);
     let clock = std::time::Instant::now();
     let evaluations = a.evaluate(&scans, max_distance).expect("evaluated");
     let time = clock.elapsed().as_secs_f64();
@@ -110,6 +102,31 @@ fn evaluate_truth(views: usize, sensor: &Sensor, max_distance: f64) {
         "evaluate {views} views at the truth ({points} points) within {max_distance} m: {time:.2} s"
     );
     println!("fitness / inlier RMSE (mm) per view: {}", figures.join(" "));
+}
+
+/// An alignment that holds the simulator's exact poses (in the first scan's frame), and nothing
+/// else: what `Alignment::evaluate` reads.
+fn at_truth(truth: &[Isometry3<f64>]) -> sdfreg_core::Alignment {
+    sdfreg_core::Alignment {
+        anchor: 0,
+        fitness: vec![0.0; truth.len()],
+        poses: truth.iter().map(|t| Some(truth[0].inverse() * t)).collect(),
+        left_out: Vec::new(),
+        edges: Vec::new(),
+        consensus: Default::default(),
+        times: Default::default(),
+        time: std::time::Duration::ZERO,
+    }
+}
+
+/// The mean fitness and mean inlier RMSE of the placed scans' evaluations.
+fn means(evaluations: &[Option<sdfreg_core::Evaluation>]) -> (f64, f64) {
+    let placed: Vec<_> = evaluations.iter().flatten().collect();
+    let n = placed.len().max(1) as f64;
+    (
+        placed.iter().map(|e| e.fitness).sum::<f64>() / n,
+        placed.iter().map(|e| e.inlier_rmse).sum::<f64>() / n,
+    )
 }
 
 /// One alignment's figures against the truth, per view (the anchor's included): the aligned
@@ -190,6 +207,19 @@ fn one_draw(views: usize, sensor: &Sensor, draw: u64, settings: &AlignSettings) 
         errors.last().map_or(0.0, |e| e.0),
         errors.last().map_or(0.0, |e| e.1 * 1e3)
     );
+    if let Some(d) = arg("--evaluate") {
+        // The reference-free measure of the aligned poses beside that of the exact ones.
+        let d: f64 = d.parse().expect("--evaluate METRES");
+        let clock = std::time::Instant::now();
+        let (fitness, rmse) = means(&a.evaluate(&scans, d).expect("evaluated"));
+        let time = clock.elapsed().as_secs_f64();
+        let (exact, exact_rmse) = means(&at_truth(&truth).evaluate(&scans, d).expect("evaluated"));
+        println!(
+            "with no reference, within {d} m: the aligned poses lay {fitness:.5} of a scan's points on the others (RMS {:.4} mm), the exact poses {exact:.5} ({:.4} mm); {time:.1} s each",
+            rmse * 1e3,
+            exact_rmse * 1e3
+        );
+    }
     let pitch = edge_bias(&a, &truth);
     edges_by_gap(&a, &truth);
     let chained = chained(&a, &truth);
