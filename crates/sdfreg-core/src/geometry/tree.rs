@@ -86,7 +86,8 @@ fn halves(sets: &[Vec<[f32; 3]>], boxes: &[UnitBox], d2: &mut [Vec<f32>], reach:
 }
 
 /// Lowers each `from` point's squared distance `d2` to that of its nearest `to` point, for the
-/// points within `reach` of the `to` sets' box.
+/// points within `reach` of the box of the `to` sets that come within `reach` of a `from` set
+/// (a tree of those alone: along a street, the halves meet only where they join).
 fn nearer_in(
     from: &[Vec<[f32; 3]>],
     from_boxes: &[UnitBox],
@@ -95,28 +96,33 @@ fn nearer_in(
     to_boxes: &[UnitBox],
     reach: f32,
 ) {
-    let Some(first) = to_boxes.first() else {
+    let meet = |a: &UnitBox, b: &UnitBox| {
+        (0..3).all(|i| a.0[i] - reach <= b.1[i] && b.0[i] <= a.1[i] + reach)
+    };
+    let used: Vec<usize> = (0..to.len())
+        .filter(|&j| from_boxes.iter().any(|b| meet(&to_boxes[j], b)))
+        .collect();
+    let Some(&first) = used.first() else {
         return;
     };
-    let (mut lo, mut hi) = *first;
-    for (l, h) in to_boxes {
+    let (mut lo, mut hi) = to_boxes[first];
+    for &j in &used {
+        let (l, h) = to_boxes[j];
         for i in 0..3 {
             lo[i] = lo[i].min(l[i]);
             hi[i] = hi[i].max(h[i]);
         }
     }
-    let lo = lo.map(|v| v - reach);
-    let hi = hi.map(|v| v + reach);
-    let inside = |p: &[f32; 3]| (0..3).all(|i| lo[i] <= p[i] && p[i] <= hi[i]);
-    let near: Vec<bool> = from_boxes
+    let reached = (lo, hi);
+    let inside = |p: &[f32; 3]| (0..3).all(|i| lo[i] - reach <= p[i] && p[i] <= hi[i] + reach);
+    let points: Vec<[f32; 3]> = used.iter().flat_map(|&j| to[j].iter().copied()).collect();
+    let tree = build_tree(&points);
+    for ((points, d2), _) in from
         .iter()
-        .map(|(l, h)| (0..3).all(|i| l[i] <= hi[i] && lo[i] <= h[i]))
-        .collect();
-    if !near.contains(&true) {
-        return;
-    }
-    let tree = build_tree(&to.concat());
-    for ((points, d2), _) in from.iter().zip(d2).zip(&near).filter(|(_, n)| **n) {
+        .zip(d2)
+        .zip(from_boxes)
+        .filter(|(_, b)| meet(&reached, b))
+    {
         points
             .par_iter()
             .zip(d2.par_iter_mut())
