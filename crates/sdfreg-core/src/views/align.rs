@@ -338,20 +338,14 @@ impl Alignment {
         // Each placed scan without its missing returns and stray points (as a registration
         // leaves them out), moved into the anchor's frame, with its bounding box there.
         let mut placed: Vec<(usize, Placed)> = Vec::new();
+        let mut moved: Vec<Vec<Point3<f64>>> = Vec::new();
         for (k, (scan, pose)) in scans.iter().zip(&self.poses).enumerate() {
             let Some(pose) = pose else { continue };
             let (points, left_out) = usable(scan, Role::Source, MIN_POINTS)?;
-            let moved: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
-            let (lo, hi) = bounding_box(&moved).expect("usable leaves points");
-            placed.push((
-                k,
-                Placed {
-                    moved,
-                    left_out,
-                    lo,
-                    hi,
-                },
-            ));
+            let points: Vec<Point3<f64>> = points.iter().map(|p| pose * p).collect();
+            let (lo, hi) = bounding_box(&points).expect("usable leaves points");
+            placed.push((k, Placed { left_out, lo, hi }));
+            moved.push(points);
         }
         let mut evaluations = vec![None; scans.len()];
         let Some((lo, hi)) = placed
@@ -361,11 +355,12 @@ impl Alignment {
         else {
             return Ok(evaluations);
         };
-        // One unit frame for all (that of the box of them all), each scan's points and box in it.
+        // One unit frame for all (that of the box of them all), each scan's points and box in it;
+        // each scan's anchor-frame copy is dropped once converted.
         let norm = Normalization::from_target(&[lo, hi])?;
-        let unit: Vec<Vec<[f32; 3]>> = placed
-            .iter()
-            .map(|(_, p)| p.moved.par_iter().map(|x| norm.to_unit(x)).collect())
+        let unit: Vec<Vec<[f32; 3]>> = moved
+            .into_iter()
+            .map(|points| points.par_iter().map(|x| norm.to_unit(x)).collect())
             .collect();
         let boxes: Vec<UnitBox> = placed
             .iter()
@@ -397,10 +392,8 @@ impl Alignment {
     }
 }
 
-/// A placed scan as [`Alignment::evaluate`] measures it.
+/// A placed scan as [`Alignment::evaluate`] counts it (its points are measured apart).
 struct Placed {
-    /// Its points, but those left out, in the anchor's frame.
-    moved: Vec<Point3<f64>>,
     /// The points left out.
     left_out: LeftOut,
     /// Its bounding box there.
