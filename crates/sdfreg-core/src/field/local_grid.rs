@@ -395,18 +395,73 @@ fn blend(slots: &[u32; 8], f: &[f32; 3], values: &[f32]) -> (f32, [f32; 3]) {
 }
 
 /// `cells` each moved by every offset in `lo..=hi` along each axis, sorted and deduplicated.
+///
+/// A box is the product of its sides, so the cells are moved along one axis at a time: sorted
+/// with that axis last, each run of cells that differ only along it becomes the union of its
+/// intervals in one pass: four sorts of sets at most the result's size, where moving every
+/// cell by all (hi − lo + 1)³ offsets at once sorted that many copies (125 per occupied voxel
+/// for the voxel map of band 1; on a procedural room scan 98 ms against 12 ms now).
 fn dilate(cells: &[[i32; 3]], lo: i32, hi: i32) -> Vec<[i32; 3]> {
-    let mut out: Vec<[i32; 3]> = cells
-        .par_iter()
-        .flat_map_iter(|&c| {
-            (lo..=hi).flat_map(move |i| {
-                (lo..=hi).flat_map(move |j| (lo..=hi).map(move |k| [c[0] + i, c[1] + j, c[2] + k]))
-            })
-        })
-        .collect();
-    out.par_sort_unstable();
-    out.dedup();
+    let mut set = cells.to_vec();
+    // Each axis with the order that sorts it last.
+    for (axis, order) in [(2, [0, 1, 2]), (1, [0, 2, 1]), (0, [1, 2, 0])] {
+        set.par_sort_unstable_by_key(|c| order.map(|a| c[a]));
+        set = along(&set, axis, lo, hi);
+    }
+    set.par_sort_unstable();
+    set
+}
+
+/// `sorted` (ordered by the other two axes, then `axis`) with each cell moved by every offset
+/// in `lo..=hi` along `axis`: each run of cells that differ only along `axis` becomes the union
+/// of its intervals, in the same order, each cell once.
+fn along(sorted: &[[i32; 3]], axis: usize, lo: i32, hi: i32) -> Vec<[i32; 3]> {
+    let mut out = Vec::with_capacity(sorted.len() * 2);
+    let same_run = |a: &[i32; 3], b: &[i32; 3]| (0..3).all(|k| k == axis || a[k] == b[k]);
+    let mut emit = |c: &[i32; 3], from: i32, to: i32| {
+        out.extend((from..=to).map(|v| {
+            let mut d = *c;
+            d[axis] = v;
+            d
+        }))
+    };
+    let mut run: Option<([i32; 3], i32, i32)> = None;
+    for c in sorted {
+        let (from, to) = (c[axis] + lo, c[axis] + hi);
+        run = match run {
+            Some((r, a, b)) if same_run(&r, c) && from <= b + 1 => Some((r, a, b.max(to))),
+            Some((r, a, b)) => {
+                emit(&r, a, b);
+                Some((*c, from, to))
+            }
+            None => Some((*c, from, to)),
+        };
+    }
+    if let Some((r, a, b)) = run {
+        emit(&r, a, b);
+    }
+    out.shrink_to_fit();
     out
+}
+
+/// For each of the `sorted` cells moved by `offset`, the slot of that position among the
+/// sorted `corners` ([`NO_SLOT`] when it is not one): one walk along both, as moving sorted
+/// cells by one offset keeps them sorted.
+fn slots_at(sorted: &[[i32; 3]], offset: &[i32; 3], corners: &[[i32; 3]]) -> Vec<u32> {
+    let mut next = 0;
+    sorted
+        .iter()
+        .map(|c| {
+            let key = [c[0] + offset[0], c[1] + offset[1], c[2] + offset[2]];
+            while corners.get(next).is_some_and(|k| *k < key) {
+                next += 1;
+            }
+            match corners.get(next) {
+                Some(k) if *k == key => next as u32,
+                _ => NO_SLOT,
+            }
+        })
+        .collect()
 }
 
 /// A [`LocalGrid`] before its voxel map is built.
@@ -429,17 +484,15 @@ impl GridPlan {
     fn build(self) -> LocalGrid {
         let b = self.band;
         let corners = self.corners;
-        let cells = dilate(&self.occupied, -b - 1, b + 1)
-            .into_par_iter()
-            .map(|c| {
-                let slots = CORNERS.map(|o| {
-                    let key = [c[0] + o[0], c[1] + o[1], c[2] + o[2]];
-                    corners.binary_search(&key).map_or(NO_SLOT, |i| i as u32)
-                });
-                (c, slots)
-            })
-            .collect::<Vec<_>>()
+        let voxels = dilate(&self.occupied, -b - 1, b + 1);
+        let by_corner: Vec<Vec<u32>> = CORNERS
+            .par_iter()
+            .map(|o| slots_at(&voxels, o, &corners))
+            .collect();
+        let cells = voxels
             .into_iter()
+            .enumerate()
+            .map(|(v, c)| (c, std::array::from_fn(|o| by_corner[o][v])))
             .collect();
         LocalGrid {
             voxel: self.voxel,
@@ -643,14 +696,26 @@ impl LocalGrid {
                 }
                 a
             });
+        // The voxels sorted, and where each row along z begins and ends among them: a cube's
+        // voxels are then added row by row, each row's in order of z (the order of a loop over
+        // the cube's x, y and z), with one lookup a row rather than one a voxel.
+        let mut sorted: Vec<([i32; 3], Moments)> = moments.into_iter().collect();
+        sorted.par_sort_unstable_by_key(|(c, _)| *c);
+        let mut rows: FxHashMap<[i32; 2], (usize, usize)> = FxHashMap::default();
+        for (k, (c, _)) in sorted.iter().enumerate() {
+            rows.entry([c[0], c[1]]).or_insert((k, k)).1 = k + 1;
+        }
         let gather = |c: &[i32; 3], lo: i32, hi: i32| {
             let mut m = Moments::default();
             for i in lo..=hi {
                 for j in lo..=hi {
-                    for k in lo..=hi {
-                        if let Some(v) = moments.get(&[c[0] + i, c[1] + j, c[2] + k]) {
-                            m.add(v);
-                        }
+                    let Some(&(start, end)) = rows.get(&[c[0] + i, c[1] + j]) else {
+                        continue;
+                    };
+                    let row = &sorted[start..end];
+                    let first = row.partition_point(|(v, _)| v[2] < c[2] + lo);
+                    for (_, v) in row[first..].iter().take_while(|(v, _)| v[2] <= c[2] + hi) {
+                        m.add(v);
                     }
                 }
             }
@@ -674,26 +739,35 @@ impl LocalGrid {
     /// signs. Each connected set of corners is then turned as a whole to agree with `hint`
     /// (a direction per slot: the network's gradient), weighted by their agreement.
     pub fn orient_planes(&self, planes: &mut [Option<([f64; 3], [f64; 3])>], hint: &[[f32; 3]]) {
-        use std::cmp::Ordering;
         use std::collections::BinaryHeap;
-        #[derive(PartialEq)]
-        struct Edge(f64, u32, u32);
-        impl Eq for Edge {}
-        impl PartialOrd for Edge {
-            fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-                Some(self.cmp(o))
-            }
-        }
-        impl Ord for Edge {
-            fn cmp(&self, o: &Self) -> Ordering {
-                self.0
-                    .total_cmp(&o.0)
-                    .then(o.1.cmp(&self.1))
-                    .then(o.2.cmp(&self.2))
-            }
-        }
+        // An edge `i → j` of weight `w` ≥ 0 as one number: the heaviest first, of equal weights
+        // the lowest `i`, then the lowest `j` (a non-negative f64's bits order as it does).
+        let edge = |w: f64, i: usize, j: usize| {
+            (u128::from(w.to_bits()) << 64)
+                | (u128::from(u32::MAX - i as u32) << 32)
+                | u128::from(u32::MAX - j as u32)
+        };
+        let ends = |e: u128| {
+            (
+                (u32::MAX - (e >> 32) as u32) as usize,
+                (u32::MAX - e as u32) as usize,
+            )
+        };
         let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-        let slot = |c: [i32; 3]| self.corners.binary_search(&c).ok();
+        // Each corner's 6-neighbours among the corners, by slot.
+        let offsets: Vec<[i32; 3]> = (0..3)
+            .flat_map(|a| {
+                [-1, 1].map(|d| {
+                    let mut o = [0; 3];
+                    o[a] = d;
+                    o
+                })
+            })
+            .collect();
+        let neighbours: Vec<Vec<u32>> = offsets
+            .par_iter()
+            .map(|o| slots_at(&self.corners, o, &self.corners))
+            .collect();
         let n = self.corners.len();
         let mut done = vec![false; n];
         let mut heap = BinaryHeap::new();
@@ -704,24 +778,23 @@ impl LocalGrid {
             // One connected set: Prim's tree from `root`, then its vote against the hint.
             let mut members = vec![root];
             done[root] = true;
-            let push = |i: usize, heap: &mut BinaryHeap<Edge>, planes: &[Option<_>]| {
-                let (_, ni) = planes[i].unwrap();
-                let c = self.corners[i];
-                for a in 0..3 {
-                    for d in [-1, 1] {
-                        let mut k = c;
-                        k[a] += d;
-                        if let Some(j) = slot(k) {
-                            if let Some((_, nj)) = planes[j] {
-                                heap.push(Edge(dot(&ni, &nj).abs(), i as u32, j as u32));
+            // The edges from `i` to its neighbours with a plane outside the tree (an edge into
+            // the tree would be passed over when popped).
+            let push =
+                |i: usize, heap: &mut BinaryHeap<u128>, planes: &[Option<_>], done: &[bool]| {
+                    let (_, ni) = planes[i].unwrap();
+                    for by_offset in &neighbours {
+                        let j = by_offset[i];
+                        if j != NO_SLOT && !done[j as usize] {
+                            if let Some((_, nj)) = planes[j as usize] {
+                                heap.push(edge(dot(&ni, &nj).abs(), i, j as usize));
                             }
                         }
                     }
-                }
-            };
-            push(root, &mut heap, planes);
-            while let Some(Edge(_, i, j)) = heap.pop() {
-                let (i, j) = (i as usize, j as usize);
+                };
+            push(root, &mut heap, planes, &done);
+            while let Some(e) = heap.pop() {
+                let (i, j) = ends(e);
                 if done[j] {
                     continue;
                 }
@@ -732,7 +805,7 @@ impl LocalGrid {
                     p.1 = p.1.map(|v| -v);
                 }
                 members.push(j);
-                push(j, &mut heap, planes);
+                push(j, &mut heap, planes, &done);
             }
             let vote: f64 = members
                 .iter()
@@ -782,6 +855,54 @@ impl<'a> SparseBaked<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dilation_axis_by_axis_is_every_cell_moved_by_every_offset() {
+        // Scattered cells, some in runs along each axis and some repeated, against every cell
+        // moved by every offset of the box, sorted and deduplicated; and the voxel map's slots
+        // against a binary search of each corner.
+        let mut cells: Vec<[i32; 3]> = (0..300)
+            .map(|i: i32| [(i * 7) % 11 - 5, (i * 13) % 9 - 4, (i * 5) % 17 - 8])
+            .collect();
+        cells.extend([
+            [40, 40, 40],
+            [40, 40, 41],
+            [40, 40, 44],
+            [-30, 2, 2],
+            [-30, 2, 2],
+        ]);
+        for (lo, hi) in [(0, 0), (-1, 2), (-2, 2), (-3, 1)] {
+            let mut brute: Vec<[i32; 3]> = cells
+                .iter()
+                .flat_map(|c| {
+                    (lo..=hi).flat_map(move |i| {
+                        (lo..=hi).flat_map(move |j| {
+                            (lo..=hi).map(move |k| [c[0] + i, c[1] + j, c[2] + k])
+                        })
+                    })
+                })
+                .collect();
+            brute.sort_unstable();
+            brute.dedup();
+            assert_eq!(dilate(&cells, lo, hi), brute, "offsets {lo}..={hi}");
+        }
+        let pts: Vec<[f32; 3]> = cells
+            .iter()
+            .map(|c| c.map(|v| v as f32 * 0.01 + 0.005))
+            .collect();
+        let grid = LocalGrid::allocate(&pts, 0.01, 1);
+        assert_eq!(grid.cells.len(), dilate(&occupied(&pts, 0.01), -2, 2).len());
+        for (c, slots) in &grid.cells {
+            for (o, &slot) in CORNERS.iter().zip(slots) {
+                let key = [c[0] + o[0], c[1] + o[1], c[2] + o[2]];
+                let want = grid
+                    .corners
+                    .binary_search(&key)
+                    .map_or(NO_SLOT, |i| i as u32);
+                assert_eq!(slot, want, "voxel {c:?} corner {o:?}");
+            }
+        }
+    }
 
     fn grid_and_theta() -> (LocalGrid, Vec<f32>) {
         let pts: Vec<[f32; 3]> = (0..200)
