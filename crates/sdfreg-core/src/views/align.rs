@@ -103,7 +103,7 @@ pub struct AlignSettings {
     pub joint_rounds: usize,
     /// Scans' models held at once: they are fitted this many at a time, in scan order, and each
     /// dropped once the pairs registered against it are done. Default 4 (a model of one of the
-    /// procedural room's scans, 115,000 returns, takes about 37 MB).
+    /// procedural room's scans, 115,000 returns, takes about 24 MB).
     #[serde(default = "default_models_at_once")]
     pub models_at_once: usize,
     /// Worker threads for the pairs (one pair per worker) and the fits; 0 = one per core.
