@@ -302,8 +302,9 @@ settings_class! {
     ///         (``FitSettings``' query, source and surface batches) are divided by this (the
     ///         network only gives the far field).
     ///     min_voxel_spacings: A voxel below this many target point spacings is refused.
-    ///     max_memory_mib: A grid whose corrections would take more memory than this (MiB,
-    ///         80 bytes each) is refused before it is built, with the size it would have had.
+    ///     max_memory_mib: A grid that would take more memory than this (MiB: 32 bytes a
+    ///         correction and its voxel map's table) is refused before it is built, with the
+    ///         size it would have had.
     ///     global_rerun_below_fitness: A full call whose Φ ``"auto"`` made local (no voxel
     ///         given) and whose result fits less than this share of the source runs again with
     ///         a global Φ, and the result fitting more is returned (``stages["global_rerun"]``):

@@ -137,8 +137,9 @@ pub struct LocalSettings {
     /// of its own, nothing between points to fit). Default 0.5; the default voxel is at least
     /// [`Self::spacings`] = 3 spacings.
     pub min_voxel_spacings: f64,
-    /// A grid whose corrections would take more than this memory, MiB, is refused before it is
-    /// built, with the size it would have had ([`BYTES_PER_CORRECTION`] each). Default 1024.
+    /// A grid that would take more than this memory, MiB, is refused before it is built, with
+    /// the size it would have had ([`LocalGrid::memory_bytes`]: [`BYTES_PER_CORRECTION`] a
+    /// correction and the voxel map's table). Default 1024.
     pub max_memory_mib: f64,
     /// A full call whose Φ [`ModelKind::Auto`] made local (no voxel given), and whose result
     /// lays less than this share of the source within the inlier distance of the target (its
@@ -154,10 +155,25 @@ pub struct LocalSettings {
     pub global_rerun_below_fitness: f64,
 }
 
-/// Memory of one correction, bytes: its value and two Adam moments (12), its corner's key (12),
-/// its value baked into a stored model (4), and its share of the voxel map (about one voxel per
-/// corner: key, eight slots and the map's own overhead, ≈ 52).
-pub const BYTES_PER_CORRECTION: f64 = 80.0;
+/// Memory of one correction's own arrays, bytes: its value and two Adam moments (12), its
+/// corner's key (12), its value baked into a stored model (4) and its plane's distance (4). The
+/// voxel map comes on top ([`LocalGrid::memory_bytes`]): 80 to 150 bytes a correction more on
+/// the procedural room, the outdoor pair and KITTI (1.3–1.4 voxels a corner, in a hash table
+/// of a power of two buckets).
+pub const BYTES_PER_CORRECTION: usize = 32;
+
+/// Memory of a voxel map of `voxels` voxels, bytes: a bucket (a voxel's key, its eight slots and
+/// a control byte) for each of the next power of two above 8/7 of them, as the hash table
+/// allocates them when built from that many.
+fn voxel_map_bytes(voxels: usize) -> usize {
+    let buckets = match voxels {
+        0 => return 0,
+        1..=3 => 4,
+        4..=7 => 8,
+        n => (n * 8 / 7).next_power_of_two(),
+    };
+    buckets * (std::mem::size_of::<([i32; 3], [u32; 8])>() + 1)
+}
 
 impl Default for LocalSettings {
     fn default() -> Self {
@@ -291,8 +307,8 @@ impl LocalSettings {
             )));
         }
         let plan = LocalGrid::planned(target, voxel, self.band);
-        let corners = plan.corrections();
-        let mib = corners as f64 * BYTES_PER_CORRECTION / (1024.0 * 1024.0);
+        let corners = plan.corners.len();
+        let mib = plan.memory_bytes() as f64 / (1024.0 * 1024.0);
         if mib > self.max_memory_mib {
             return Err(bad(format!(
                 "a local voxel of {:.3e} {unit} makes {corners} corrections (≈ {mib:.1} MiB), \
@@ -467,24 +483,21 @@ fn slots_at(sorted: &[[i32; 3]], offset: &[i32; 3], corners: &[[i32; 3]]) -> Vec
 /// A [`LocalGrid`] before its voxel map is built.
 struct GridPlan {
     voxel: f32,
-    band: i32,
-    /// The voxels holding target points, sorted.
-    occupied: Vec<[i32; 3]>,
     /// The corners holding a correction, sorted (their slots).
     corners: Vec<[i32; 3]>,
+    /// Every voxel having one of them as a corner, sorted.
+    voxels: Vec<[i32; 3]>,
 }
 
 impl GridPlan {
-    /// The corrections the grid will hold.
-    fn corrections(&self) -> usize {
-        self.corners.len()
+    /// [`LocalGrid::memory_bytes`] of the grid it will be.
+    fn memory_bytes(&self) -> usize {
+        self.corners.len() * BYTES_PER_CORRECTION + voxel_map_bytes(self.voxels.len())
     }
 
     /// The grid: every voxel having a corner with a correction, with its corners' slots.
     fn build(self) -> LocalGrid {
-        let b = self.band;
-        let corners = self.corners;
-        let voxels = dilate(&self.occupied, -b - 1, b + 1);
+        let (corners, voxels) = (self.corners, self.voxels);
         let by_corner: Vec<Vec<u32>> = CORNERS
             .par_iter()
             .map(|o| slots_at(&voxels, o, &corners))
@@ -517,8 +530,8 @@ impl LocalGrid {
         Self::planned(target, voxel, band).build()
     }
 
-    /// The voxels and corners of [`Self::allocate`]'s grid, before its voxel map is built:
-    /// [`GridPlan::corrections`] says how large it will be.
+    /// The corners and voxels of [`Self::allocate`]'s grid, before its voxel map is built:
+    /// [`GridPlan::memory_bytes`] says how large it will be.
     fn planned(target: &[[f32; 3]], voxel: f64, band: usize) -> GridPlan {
         let voxel = voxel as f32;
         let occupied = occupied(target, voxel);
@@ -526,11 +539,11 @@ impl LocalGrid {
         // Corners of the voxels within the band; then every voxel having one of them as a
         // corner, so that the correction falls continuously to 0 beyond the band.
         let corners = dilate(&occupied, -b, b + 1);
+        let voxels = dilate(&occupied, -b - 1, b + 1);
         GridPlan {
             voxel,
-            band: b,
-            occupied,
             corners,
+            voxels,
         }
     }
 
@@ -557,10 +570,10 @@ impl LocalGrid {
         self.voxel
     }
 
-    /// Bytes the grid's index holds (the corrections, 4 bytes a corner, not counted).
-    pub fn index_bytes(&self) -> usize {
-        self.cells.capacity() * (std::mem::size_of::<([i32; 3], [u32; 8])>() + 1)
-            + self.corners.capacity() * std::mem::size_of::<[i32; 3]>()
+    /// Bytes the grid and its corrections take in a model being fitted:
+    /// [`BYTES_PER_CORRECTION`] a correction and the voxel map's hash table.
+    pub fn memory_bytes(&self) -> usize {
+        self.corners.len() * BYTES_PER_CORRECTION + voxel_map_bytes(self.cells.len())
     }
 
     /// The correction at `x` and its gradient, with corrections `theta` (in voxels).
@@ -1030,8 +1043,22 @@ mod tests {
         );
         // A voxel of 0.004 makes this many corrections; a ceiling just below them refuses it,
         // saying how many and how large, and one just above accepts it.
-        let corrections = LocalGrid::allocate(&square, 1.0 / 250.0, 1).len();
-        let mib = corrections as f64 * BYTES_PER_CORRECTION / (1024.0 * 1024.0);
+        let built = LocalGrid::allocate(&square, 1.0 / 250.0, 1);
+        let corrections = built.len();
+        let mib = built.memory_bytes() as f64 / (1024.0 * 1024.0);
+        // The voxel map's share is its table as allocated: as many buckets as its capacity
+        // holds 8 for every 7 (the hash table's load factor), each a key, eight slots and a
+        // control byte.
+        assert_eq!(
+            voxel_map_bytes(built.cells.len()),
+            built.cells.capacity() / 7 * 8 * (std::mem::size_of::<([i32; 3], [u32; 8])>() + 1)
+        );
+        assert!(
+            built.memory_bytes()
+                >= corrections * BYTES_PER_CORRECTION
+                    + built.cells.len() * std::mem::size_of::<([i32; 3], [u32; 8])>(),
+            "{mib} MiB"
+        );
         let err = local(250, mib * 0.99)
             .grid(&square, spacing)
             .unwrap_err()
