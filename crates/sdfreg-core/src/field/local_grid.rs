@@ -157,7 +157,7 @@ pub struct LocalSettings {
 
 /// Memory of one correction's own arrays, bytes: its value and two Adam moments (12), its
 /// corner's key (12), its value baked into a stored model (4) and its plane's distance (4). The
-/// voxel map comes on top ([`LocalGrid::memory_bytes`]): 80 to 150 bytes a correction more on
+/// voxel map comes on top ([`LocalGrid::memory_bytes`]): 80 to 125 bytes a correction more on
 /// the procedural room, the outdoor pair and KITTI (1.3–1.4 voxels a corner, in a hash table
 /// of a power of two buckets).
 pub const BYTES_PER_CORRECTION: usize = 32;
