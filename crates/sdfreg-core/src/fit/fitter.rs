@@ -17,6 +17,7 @@
 //! Entry point: [`SdfFitter`].
 
 use std::num::NonZeroUsize;
+use std::sync::OnceLock;
 
 use kiddo::SquaredEuclidean;
 use rand::seq::index::sample;
@@ -92,10 +93,12 @@ pub struct SdfFitter {
     settings: FitSettings,
     target: Vec<[f32; 3]>,
     tree: Tree,
-    pool: Vec<([f32; 3], [f32; 3])>,
-    /// The local part's fixed pool of queries about the target's points, each with its nearest
-    /// target point (empty for a global model).
-    local_pool: Vec<([f32; 3], [f32; 3])>,
+    /// The fixed query pools: drawn when the fit is set up ([`Self::new`]), or, for a fitter
+    /// restored from a file ([`Self::for_restore`]), when a step first needs them.
+    pools: OnceLock<QueryPools>,
+    /// The random stream's seed and its position after the network's initial draws, where the
+    /// pools' draws begin.
+    pools_from: (u64, u128),
     source_queries: Vec<([f32; 3], [f32; 3])>,
     /// With corrections from planes: each corner's signed distance to its plane, by slot (NaN
     /// without one); empty otherwise (a global model, trained corrections, or before
@@ -107,6 +110,82 @@ pub struct SdfFitter {
     scratch: Vec<BlockScratch>,
     /// The target's median point spacing ([`target_spacing`]), unit frame.
     spacing: f64,
+}
+
+/// A fit's fixed pools of queries, each with its nearest target point.
+#[derive(Clone, Debug)]
+struct QueryPools {
+    /// Target points moved by `N(0, σ²)` (the perturbation queries).
+    pool: Vec<([f32; 3], [f32; 3])>,
+    /// The local part's queries about the target's points (empty for a global model, or
+    /// corrections from planes).
+    local_pool: Vec<([f32; 3], [f32; 3])>,
+}
+
+impl QueryPools {
+    /// The pools of a fit on `target` (its k-d `tree`, its local grid `local`), drawn from
+    /// `rng` in a fixed order: the σ centres, the perturbation queries, the local queries.
+    fn draw(
+        rng: &mut ChaCha8Rng,
+        target: &[[f32; 3]],
+        tree: &Tree,
+        local: Option<&LocalGrid>,
+        settings: &FitSettings,
+    ) -> Self {
+        let m = target.len();
+        let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
+        let centres: Vec<[f32; 3]> = if s >= m {
+            target.to_vec()
+        } else {
+            sample(rng, m, s).into_iter().map(|i| target[i]).collect()
+        };
+        let centre_tree = build_tree(&centres);
+        let k = settings.sigma_neighbour.clamp(1, centres.len() - 1);
+        let sigmas: Vec<f32> = centres
+            .par_iter()
+            .map(|c| {
+                let nn =
+                    centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
+                nn.last()
+                    .map(|n| n.distance.sqrt())
+                    .unwrap_or(0.0)
+                    .max(1e-4)
+            })
+            .collect();
+        let queries: Vec<[f32; 3]> = (0..settings.query_pool)
+            .map(|i| {
+                let j = i % centres.len();
+                let c = centres[j];
+                let mut q = [0.0f32; 3];
+                for a in 0..3 {
+                    let n: f32 = StandardNormal.sample(rng);
+                    q[a] = c[a] + sigmas[j] * n;
+                }
+                q
+            })
+            .collect();
+        let nearest = |x: &[f32; 3]| target[tree.nearest_one::<SquaredEuclidean>(x).item as usize];
+        let pool = queries.par_iter().map(|q| (*q, nearest(q))).collect();
+        let local_pool = match local {
+            Some(grid) if !settings.local.plane_fit => {
+                // Target points moved by a fraction of a voxel (the pool's σ is the scale of the
+                // whole target), each with its nearest target point.
+                let sigma = (settings.local.sigma_voxels * grid.voxel() as f64) as f32;
+                let moved: Vec<[f32; 3]> = (0..settings.local.pool)
+                    .map(|_| {
+                        let c = target[rng.random_range(0..target.len())];
+                        [0, 1, 2].map(|a| {
+                            let n: f32 = StandardNormal.sample(rng);
+                            c[a] + sigma * n
+                        })
+                    })
+                    .collect();
+                moved.par_iter().map(|x| (*x, nearest(x))).collect()
+            }
+            _ => Vec::new(),
+        };
+        Self { pool, local_pool }
+    }
 }
 
 /// One block's workspace, network gradient and local gradient `(slot, ∂L/∂θ)`.
@@ -163,6 +242,21 @@ impl SdfFitter {
         settings: &FitSettings,
         seed: u64,
     ) -> Self {
+        Self::for_restore(target, mlp, settings, seed).with_pools()
+    }
+
+    /// [`Self::new`] but for the query pools, for a fitter whose state is then restored
+    /// ([`Self::restore`]): a model read from a file, which most often only registers. The pools
+    /// are drawn when a step first needs them, the same as [`Self::new`]'s (from the seed's
+    /// stream at the same position). Drawing them is a nearest-point search for each of their
+    /// 16,384 (and a local model's 65,536) queries: 90 ms of the 170 ms that reading a room
+    /// scan's model took.
+    pub(crate) fn for_restore(
+        target: Vec<[f32; 3]>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Self {
         let tree = build_tree(&target);
         let spacing = target_spacing(&target, &tree);
         let local = settings
@@ -185,12 +279,25 @@ impl SdfFitter {
         let tree = build_tree(&target);
         let spacing = target_spacing(&target, &tree);
         let local = settings.local.grid(&target, spacing)?;
-        Ok(Self::assemble(
-            target, tree, spacing, local, mlp, settings, seed,
-        ))
+        Ok(Self::assemble(target, tree, spacing, local, mlp, settings, seed).with_pools())
     }
 
-    /// The fit on `target` with its k-d `tree`, median `spacing` and local grid.
+    /// Draws the query pools now, from the fit's own random stream (which must stand where
+    /// [`Self::assemble`] left it: just past the network's initial draws).
+    fn with_pools(mut self) -> Self {
+        let drawn = QueryPools::draw(
+            &mut self.rng,
+            &self.target,
+            &self.tree,
+            self.field.grid(),
+            &self.settings,
+        );
+        self.pools = OnceLock::from(drawn);
+        self
+    }
+
+    /// The fit on `target` with its k-d `tree`, median `spacing` and local grid, its query
+    /// pools not drawn yet ([`Self::with_pools`]).
     fn assemble(
         target: Vec<[f32; 3]>,
         tree: Tree,
@@ -202,77 +309,8 @@ impl SdfFitter {
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let net = Mlp::new(mlp, &mut rng);
-        let m = target.len();
-        let s = settings.sigma_sample.clamp(2, m.max(2)).min(m);
-        let centres: Vec<[f32; 3]> = if s >= m {
-            target.clone()
-        } else {
-            sample(&mut rng, m, s)
-                .into_iter()
-                .map(|i| target[i])
-                .collect()
-        };
-        let centre_tree = build_tree(&centres);
-        let k = settings.sigma_neighbour.clamp(1, centres.len() - 1);
-        let sigmas: Vec<f32> = centres
-            .par_iter()
-            .map(|c| {
-                let nn =
-                    centre_tree.nearest_n::<SquaredEuclidean>(c, NonZeroUsize::new(k + 1).unwrap());
-                nn.last()
-                    .map(|n| n.distance.sqrt())
-                    .unwrap_or(0.0)
-                    .max(1e-4)
-            })
-            .collect();
-        let queries: Vec<[f32; 3]> = (0..settings.query_pool)
-            .map(|i| {
-                let j = i % centres.len();
-                let c = centres[j];
-                let mut q = [0.0f32; 3];
-                for a in 0..3 {
-                    let n: f32 = StandardNormal.sample(&mut rng);
-                    q[a] = c[a] + sigmas[j] * n;
-                }
-                q
-            })
-            .collect();
-        let pool = queries
-            .par_iter()
-            .map(|q| {
-                (
-                    *q,
-                    target[tree.nearest_one::<SquaredEuclidean>(q).item as usize],
-                )
-            })
-            .collect();
+        let pools_from = (seed, rng.get_word_pos());
         let n_local = local.as_ref().map_or(0, LocalGrid::len);
-        let local_pool = match &local {
-            Some(grid) if !settings.local.plane_fit => {
-                // Target points moved by a fraction of a voxel (the pool's σ is the scale of the
-                // whole target), each with its nearest target point.
-                let sigma = (settings.local.sigma_voxels * grid.voxel() as f64) as f32;
-                let moved: Vec<[f32; 3]> = (0..settings.local.pool)
-                    .map(|_| {
-                        let c = target[rng.random_range(0..target.len())];
-                        [0, 1, 2].map(|a| {
-                            let n: f32 = StandardNormal.sample(&mut rng);
-                            c[a] + sigma * n
-                        })
-                    })
-                    .collect();
-                moved
-                    .par_iter()
-                    .map(|x| {
-                        (
-                            *x,
-                            target[tree.nearest_one::<SquaredEuclidean>(x).item as usize],
-                        )
-                    })
-                    .collect()
-            }
-            _ => Vec::new(),
-        };
         Self {
             adam: Adam::new(net.num_params()),
             adam_local: Adam::new(n_local),
@@ -280,8 +318,8 @@ impl SdfFitter {
             settings: settings.clone(),
             target,
             tree,
-            pool,
-            local_pool,
+            pools: OnceLock::new(),
+            pools_from,
             source_queries: Vec::new(),
             plane_distance: Vec::new(),
             rng,
@@ -531,12 +569,25 @@ impl SdfFitter {
             (st.refine_batch_queries, st.batch_source)
         };
         let (nq, ns) = ((nq / divisor).max(1), ns / divisor);
-        let nq = nq.min(self.pool.len());
+        let (seed, word_pos) = self.pools_from;
+        let pools = self.pools.get_or_init(|| {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_word_pos(word_pos);
+            QueryPools::draw(
+                &mut rng,
+                &self.target,
+                &self.tree,
+                self.field.grid(),
+                &self.settings,
+            )
+        });
+        let (pool, local_pool) = (&pools.pool, &pools.local_pool);
+        let nq = nq.min(pool.len());
         let nt = (st.batch_surface / divisor).max(1);
         let (wq, ws_) = (1.0 / nq.max(1) as f32, 1.0 / ns.max(1) as f32);
         let mut queries = Vec::with_capacity(nq + ns);
         for _ in 0..nq {
-            let (x, t) = self.pool[self.rng.random_range(0..self.pool.len())];
+            let (x, t) = pool[self.rng.random_range(0..pool.len())];
             queries.push(Query { x, t, w: wq });
         }
         for _ in 0..ns {
@@ -546,11 +597,11 @@ impl SdfFitter {
         let surface: Vec<[f32; 3]> = (0..nt)
             .map(|_| self.target[self.rng.random_range(0..self.target.len())])
             .collect();
-        if !self.local_pool.is_empty() {
+        if !local_pool.is_empty() {
             let nl = st.local.batch;
             let wl = 1.0 / nl as f32;
             for _ in 0..nl {
-                let (x, t) = self.local_pool[self.rng.random_range(0..self.local_pool.len())];
+                let (x, t) = local_pool[self.rng.random_range(0..local_pool.len())];
                 queries.push(Query { x, t, w: wl });
             }
         }
@@ -712,6 +763,40 @@ mod tests {
         let old: FitSettings = serde_json::from_value(json).unwrap();
         assert_eq!(old.local.network_batch_divisor, 1);
         assert_eq!(FitSettings::default().local.network_batch_divisor, 1);
+    }
+
+    #[test]
+    fn a_restored_fitter_draws_the_same_pools_when_it_first_steps() {
+        // A fitter set up for a restore draws its pools only when a step needs them, from the
+        // seed's stream where `new` drew them: it must train to the same bits as the fitter
+        // whose state it restored, global and local (corrections trained, with their own pool).
+        let mut local = FitSettings::default();
+        local.local.voxel = Some(0.05);
+        local.local.plane_fit = false;
+        let mut global = FitSettings::default();
+        global.local.kind = crate::ModelKind::Global;
+        global.local.voxel = None;
+        for s in [&global, &local] {
+            let mlp = MlpSettings::default();
+            let mut original = SdfFitter::new(sphere(1500), &mlp, s, 9);
+            original.train(3, 1e-3);
+            let mut restored = SdfFitter::for_restore(sphere(1500), &mlp, s, 9);
+            assert!(restored.pools.get().is_none(), "pools drawn before a step");
+            restored.restore(original.state()).unwrap();
+            original.train(4, 1e-3);
+            restored.train(4, 1e-3);
+            let pools = (original.pools.get().unwrap(), restored.pools.get().unwrap());
+            assert_eq!(pools.0.pool, pools.1.pool);
+            assert_eq!(pools.0.local_pool, pools.1.local_pool);
+            assert_eq!(pools.1.local_pool.is_empty(), s.local.voxel.is_none());
+            let (a, b) = (original.state(), restored.state());
+            assert!(a
+                .params
+                .iter()
+                .zip(&b.params)
+                .all(|(x, y)| x.to_bits() == y.to_bits()));
+            assert_eq!(a.rng_word_pos, b.rng_word_pos);
+        }
     }
 
     #[test]

@@ -227,7 +227,7 @@ fn decode(bytes: &[u8]) -> Result<SdfModel, String> {
         .and(settings.fit.validate())
         .map_err(|e| format!("settings: {e}"))?;
     let target: Vec<[f32; 3]> = points.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
-    let mut fitter = SdfFitter::new(
+    let mut fitter = SdfFitter::for_restore(
         target,
         &settings.mlp,
         &settings.fit,
