@@ -295,6 +295,11 @@ fn a_local_model_saves_and_loads_with_the_same_registrations() {
     let a = model.register(&pair.source, None, &s).unwrap();
     let b = back.register(&pair.source, None, &s).unwrap();
     assert_eq!(a.t_target_source, b.t_target_source);
+    // Refined too: the loaded model computes its corners' plane distances again, so that its
+    // corrections follow the network as the fitted one's do.
+    let a = model.register_refined(&pair.source, None, &s).unwrap();
+    let b = back.register_refined(&pair.source, None, &s).unwrap();
+    assert_eq!(a.t_target_source, b.t_target_source);
     // Queries read the local part too: on the target's points Φ is near 0 (metres).
     let d = back.distance(&pair.target[..2000]);
     let mut abs: Vec<f64> = d.iter().map(|v| v.abs()).collect();

@@ -104,6 +104,8 @@ pub struct SdfFitter {
     /// without one); empty otherwise (a global model, trained corrections, or before
     /// [`Self::start_local_from_planes`]).
     plane_distance: Vec<f32>,
+    /// A restored local model's `plane_distance`, not computed yet ([`Self::for_restore`]).
+    planes_pending: bool,
     rng: ChaCha8Rng,
     /// Per-block workspace, gradient and local gradient (slot, value), kept between steps (no
     /// allocation in the loop).
@@ -242,7 +244,7 @@ impl SdfFitter {
         settings: &FitSettings,
         seed: u64,
     ) -> Self {
-        Self::for_restore(target, mlp, settings, seed).with_pools()
+        Self::unpooled(target, mlp, settings, seed).with_pools()
     }
 
     /// [`Self::new`] but for the query pools, for a fitter whose state is then restored
@@ -251,7 +253,25 @@ impl SdfFitter {
     /// stream at the same position). Drawing them is a nearest-point search for each of their
     /// 16,384 (and a local model's 65,536) queries: 90 ms of the 170 ms that reading a room
     /// scan's model took.
+    ///
+    /// A local model fitted with corrections from planes holds the network its planes were
+    /// set against ([`Self::start_local_from_planes`] ends the fit), so its corners' plane
+    /// distances, which the file does not hold, are computed again, the same, before a step
+    /// first changes the network; without them its corrections would no longer follow the
+    /// network while it is refined.
     pub(crate) fn for_restore(
+        target: Vec<[f32; 3]>,
+        mlp: &MlpSettings,
+        settings: &FitSettings,
+        seed: u64,
+    ) -> Self {
+        let mut fitter = Self::unpooled(target, mlp, settings, seed);
+        fitter.planes_pending = fitter.settings.local.plane_fit && fitter.field.grid().is_some();
+        fitter
+    }
+
+    /// [`Self::new`] without its query pools.
+    fn unpooled(
         target: Vec<[f32; 3]>,
         mlp: &MlpSettings,
         settings: &FitSettings,
@@ -322,6 +342,7 @@ impl SdfFitter {
             pools_from,
             source_queries: Vec::new(),
             plane_distance: Vec::new(),
+            planes_pending: false,
             rng,
             scratch: Vec::new(),
             spacing,
@@ -466,9 +487,17 @@ impl SdfFitter {
     ///
     /// [`LocalSettings::plane_fit`]: crate::field::local_grid::LocalSettings::plane_fit
     pub fn start_local_from_planes(&mut self) -> usize {
-        let Some(grid) = self.field.grid() else {
+        let Some(values) = self.set_plane_distance() else {
             return 0;
         };
+        self.set_corrections(&values);
+        self.plane_distance.iter().filter(|d| !d.is_nan()).count()
+    }
+
+    /// Sets `plane_distance` from the corners' planes, turned by the network as it is now;
+    /// returns the network's values at the corners (`None` for a global model).
+    fn set_plane_distance(&mut self) -> Option<Vec<f32>> {
+        let grid = self.field.grid()?;
         let mut planes = grid.corner_planes(&self.target);
         let corners = grid.corner_positions();
         let (values, gradients) = self.field.mlp().eval(&corners, true);
@@ -482,8 +511,8 @@ impl SdfFitter {
                 })
             })
             .collect();
-        self.set_corrections(&values);
-        self.plane_distance.iter().filter(|d| !d.is_nan()).count()
+        self.planes_pending = false;
+        Some(values)
     }
 
     /// Sets each correction so that Φ at its corner is its plane distance (none without a
@@ -535,6 +564,10 @@ impl SdfFitter {
     /// Runs `steps` Adam steps at learning rate `lr`; returns the loss of the last step. Local
     /// corrections set from planes ([`Self::start_local_from_planes`]) then follow the network.
     pub fn train(&mut self, steps: usize, lr: f32) -> FitLoss {
+        if steps > 0 && self.planes_pending {
+            // The corrections restored are those these distances gave: only keep them.
+            self.set_plane_distance();
+        }
         let mut loss = FitLoss::default();
         for _ in 0..steps {
             loss = self.step(lr);
@@ -766,29 +799,51 @@ mod tests {
     }
 
     #[test]
-    fn a_restored_fitter_draws_the_same_pools_when_it_first_steps() {
+    fn a_restored_fitter_trains_to_the_same_bits_as_the_one_it_was_saved_from() {
         // A fitter set up for a restore draws its pools only when a step needs them, from the
         // seed's stream where `new` drew them: it must train to the same bits as the fitter
-        // whose state it restored, global and local (corrections trained, with their own pool).
+        // whose state it restored, global and local (corrections trained, with their own pool;
+        // and corrections from planes, whose plane distances it computes again).
         let mut local = FitSettings::default();
         local.local.voxel = Some(0.05);
         local.local.plane_fit = false;
+        let mut planes = local.clone();
+        planes.local.plane_fit = true;
         let mut global = FitSettings::default();
         global.local.kind = crate::ModelKind::Global;
         global.local.voxel = None;
-        for s in [&global, &local] {
+        for s in [&global, &local, &planes] {
             let mlp = MlpSettings::default();
             let mut original = SdfFitter::new(sphere(1500), &mlp, s, 9);
             original.train(3, 1e-3);
+            let from_planes = s.local.plane_fit && s.local.voxel.is_some();
+            if from_planes {
+                let n = original.start_local_from_planes();
+                assert!(n > 100, "{n} corners with a plane");
+            }
             let mut restored = SdfFitter::for_restore(sphere(1500), &mlp, s, 9);
             assert!(restored.pools.get().is_none(), "pools drawn before a step");
+            assert_eq!(restored.planes_pending, from_planes);
             restored.restore(original.state()).unwrap();
             original.train(4, 1e-3);
             restored.train(4, 1e-3);
+            assert_eq!(
+                original
+                    .plane_distance
+                    .iter()
+                    .map(|d| d.to_bits())
+                    .collect::<Vec<_>>(),
+                restored
+                    .plane_distance
+                    .iter()
+                    .map(|d| d.to_bits())
+                    .collect::<Vec<_>>()
+            );
             let pools = (original.pools.get().unwrap(), restored.pools.get().unwrap());
             assert_eq!(pools.0.pool, pools.1.pool);
             assert_eq!(pools.0.local_pool, pools.1.local_pool);
-            assert_eq!(pools.1.local_pool.is_empty(), s.local.voxel.is_none());
+            let trained = s.local.voxel.is_some() && !s.local.plane_fit;
+            assert_eq!(pools.1.local_pool.is_empty(), !trained);
             let (a, b) = (original.state(), restored.state());
             assert!(a
                 .params
