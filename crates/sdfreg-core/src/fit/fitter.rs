@@ -251,8 +251,8 @@ impl SdfFitter {
     /// ([`Self::restore`]): a model read from a file, which most often only registers. The pools
     /// are drawn when a step first needs them, the same as [`Self::new`]'s (from the seed's
     /// stream at the same position). Drawing them is a nearest-point search for each of their
-    /// 16,384 (and a local model's 65,536) queries: 90 ms of the 170 ms that reading a room
-    /// scan's model took.
+    /// 16,384 queries (65,536 more for corrections trained by Adam), most of them far from
+    /// the points: 90 ms of the 170 ms that reading a room scan's model took.
     ///
     /// A local model fitted with corrections from planes holds the network its planes were
     /// set against ([`Self::start_local_from_planes`] ends the fit), so its corners' plane
