@@ -302,18 +302,29 @@ impl SdfFitter {
         Ok(Self::assemble(target, tree, spacing, local, mlp, settings, seed).with_pools())
     }
 
-    /// Draws the query pools now, from the fit's own random stream (which must stand where
+    /// Draws the query pools now, and moves the fit's random stream past them (from where
     /// [`Self::assemble`] left it: just past the network's initial draws).
     fn with_pools(mut self) -> Self {
-        let drawn = QueryPools::draw(
-            &mut self.rng,
+        let (pools, after) = self.draw_pools();
+        self.rng.set_word_pos(after);
+        self.pools = OnceLock::from(pools);
+        self
+    }
+
+    /// The query pools, drawn from the fit's random stream at `pools_from`,
+    /// and the stream's position after them.
+    fn draw_pools(&self) -> (QueryPools, u128) {
+        let (seed, word_pos) = self.pools_from;
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        rng.set_word_pos(word_pos);
+        let pools = QueryPools::draw(
+            &mut rng,
             &self.target,
             &self.tree,
             self.field.grid(),
             &self.settings,
         );
-        self.pools = OnceLock::from(drawn);
-        self
+        (pools, rng.get_word_pos())
     }
 
     /// The fit on `target` with its k-d `tree`, median `spacing` and local grid, its query
@@ -602,18 +613,7 @@ impl SdfFitter {
             (st.refine_batch_queries, st.batch_source)
         };
         let (nq, ns) = ((nq / divisor).max(1), ns / divisor);
-        let (seed, word_pos) = self.pools_from;
-        let pools = self.pools.get_or_init(|| {
-            let mut rng = ChaCha8Rng::seed_from_u64(seed);
-            rng.set_word_pos(word_pos);
-            QueryPools::draw(
-                &mut rng,
-                &self.target,
-                &self.tree,
-                self.field.grid(),
-                &self.settings,
-            )
-        });
+        let pools = self.pools.get_or_init(|| self.draw_pools().0);
         let (pool, local_pool) = (&pools.pool, &pools.local_pool);
         let nq = nq.min(pool.len());
         let nt = (st.batch_surface / divisor).max(1);
