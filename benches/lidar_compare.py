@@ -131,7 +131,7 @@ def speed(kind: str, model: "sdfreg.SdfModel", src: np.ndarray, tgt: np.ndarray,
     """From the identity: registrations against the stored model against small_gicp, medians of
     7 each, in this run."""
     rows = []
-    model.register(src, init=np.eye(4))  # the model's first registration bakes its grid
+    model.register(src, init=np.eye(4))  # the first registration makes the model's polish planes
     t_gicp, t = median_time(lambda: gicp(src, tgt, np.eye(4)))
     rot, trans = pose_errors(t, gt)
     print(f"  speed from the identity (median of 7): small_gicp {t_gicp:.3f} s ({rot:.3f}°, {trans:.4f} m)")
@@ -276,7 +276,7 @@ def real(root: Path, rows: List[dict], quick: bool, far_starts: bool, reverse: b
         runs = {"sdfreg": lambda s_, t_, i: np.asarray(sdfreg.register(s_, t_, init=i).transformation),
                 "sdfreg model": lambda s_, t_, i: np.asarray(model.register(s_, init=i).transformation),
                 **peers}
-        model.register(src, init=np.eye(4))  # the model's first registration bakes its grid
+        model.register(src, init=np.eye(4))  # the first registration makes the model's polish planes
         answers: Dict[str, np.ndarray] = {}
         for method, run in runs.items():
             for start, init in starts.items():

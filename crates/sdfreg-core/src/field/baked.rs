@@ -14,6 +14,8 @@
 //! `WithGrid` (crate-private) is a target with its grid as the registration stages see it
 //! ([`crate::SdfModel::register`], [`crate::MeshModel::register`]).
 
+use std::sync::{Arc, OnceLock};
+
 use rayon::prelude::*;
 
 use crate::field::Field;
@@ -27,6 +29,24 @@ pub const BAKED_CELLS: usize = 48;
 /// bounding-box centre, the target (within `[-0.5, 0.5]³`) and a margin of a quarter of its
 /// size on each side, where the starts' source points land.
 pub const BAKED_HALF_EXTENT: f32 = 0.75;
+
+/// The grid in `cell`, baked from `field` ([`BAKED_CELLS`], [`BAKED_HALF_EXTENT`]) when the cell
+/// is empty: a stored model's, made on its first read and kept for the next registrations.
+///
+/// Not `OnceLock::get_or_init`: the bake runs rayon tasks, and a worker waiting on them may take
+/// up another task that asks for the same cell (registrations through one model run from a
+/// caller's own parallel loop), which `get_or_init` would wait on forever. Such a reader bakes a
+/// grid of its own instead, the same bits from the same field, and the first grid stored is kept.
+pub(crate) fn baked_once<'c, F: Field + ?Sized>(
+    cell: &'c OnceLock<Arc<BakedGrid>>,
+    field: &F,
+) -> &'c BakedGrid {
+    if let Some(grid) = cell.get() {
+        return grid;
+    }
+    let grid = Arc::new(BakedGrid::bake(field, BAKED_CELLS, BAKED_HALF_EXTENT));
+    cell.get_or_init(|| grid)
+}
 
 /// Φ and ∇Φ sampled at the nodes of a regular grid (unit frame).
 #[derive(Clone)]
@@ -76,6 +96,19 @@ impl BakedGrid {
             nodes,
             data,
         }
+    }
+
+    /// Whether `other` holds the same nodes, to the bit.
+    #[cfg(test)]
+    pub(crate) fn same_bits(&self, other: &BakedGrid) -> bool {
+        let bits = |g: &BakedGrid| -> Vec<u32> {
+            [g.origin, g.cell]
+                .into_iter()
+                .chain(g.data.iter().flatten().copied())
+                .map(f32::to_bits)
+                .collect()
+        };
+        self.nodes == other.nodes && bits(self) == bits(other)
     }
 
     /// Φ and ∇Φ at `x` by trilinear interpolation of the nodes' values and gradients; `None`
@@ -204,6 +237,52 @@ mod tests {
                 g.extend(xs.iter().map(|x| x.map(|c| c / norm(x))));
             }
         }
+    }
+
+    /// The sphere, whose first evaluation asks for the grid in `cell` (as a registration taken
+    /// up by a worker waiting on the bake would).
+    struct AsksAgain<'c> {
+        cell: &'c OnceLock<Arc<BakedGrid>>,
+        asked: std::sync::atomic::AtomicBool,
+    }
+    impl Field for AsksAgain<'_> {
+        fn eval_block(
+            &self,
+            xs: &[[f32; 3]],
+            values: &mut Vec<f32>,
+            gradients: Option<&mut Vec<[f32; 3]>>,
+        ) {
+            if !self.asked.swap(true, std::sync::atomic::Ordering::SeqCst) {
+                baked_once(self.cell, &Sphere);
+            }
+            Sphere.eval_block(xs, values, gradients)
+        }
+    }
+
+    #[test]
+    fn a_grid_asked_for_while_it_is_baked_is_baked_again_not_waited_for() {
+        let (send, receive) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let cell = OnceLock::new();
+            let field = AsksAgain {
+                cell: &cell,
+                asked: false.into(),
+            };
+            let first = baked_once(&cell, &field) as *const BakedGrid;
+            let _ = send.send((
+                first == Arc::as_ptr(cell.get().unwrap()),
+                cell.get().cloned(),
+            ));
+        });
+        // `OnceLock::get_or_init` waits here forever (the inner ask is on the baking thread).
+        let (kept, grid) = receive
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("the grid asked for while it was baked did not return");
+        // The inner grid was stored first; the outer call returns it, not its own copy.
+        assert!(kept);
+        assert!(grid
+            .unwrap()
+            .same_bits(&BakedGrid::bake(&Sphere, BAKED_CELLS, BAKED_HALF_EXTENT)));
     }
 
     #[test]

@@ -6,7 +6,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::{Error, Role};
-use crate::field::baked::{BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
+use crate::field::baked::BakedGrid;
 use crate::field::mesh::MeshField;
 use crate::field::Field;
 use crate::geometry::cloud::{validate, LeftOut, Normalization};
@@ -109,17 +109,6 @@ impl MeshModel {
         })
     }
 
-    /// The distance baked into a grid, made on `threads` workers when first asked for.
-    fn grid(&self, threads: usize) -> Result<&std::sync::Arc<BakedGrid>, Error> {
-        if let Some(grid) = self.grid.get() {
-            return Ok(grid);
-        }
-        let grid = crate::base::pool::in_pool(threads, || {
-            BakedGrid::bake(&self.surface.field, BAKED_CELLS, BAKED_HALF_EXTENT)
-        })?;
-        Ok(self.grid.get_or_init(|| std::sync::Arc::new(grid)))
-    }
-
     /// Whether the distance is signed (a closed, consistently oriented mesh).
     pub fn is_signed(&self) -> bool {
         self.surface.field.is_signed()
@@ -137,7 +126,7 @@ impl MeshModel {
     ) -> Result<Registration, Error> {
         crate::pipeline::register::against(
             &self.norm,
-            &WithGrid::new(&self.surface, self.grid(settings.threads)?),
+            &WithGrid::lazy(&self.surface, &self.grid),
             source,
             init,
             settings,

@@ -22,7 +22,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::base::error::{Error, Role};
-use crate::field::baked::{BakedGrid, BAKED_CELLS, BAKED_HALF_EXTENT};
+use crate::field::baked::BakedGrid;
 use crate::field::local_grid::{ModelKind, SparseBaked};
 use crate::field::mlp::{Mlp, MlpSettings};
 use crate::fit::fitter::SdfFitter;
@@ -57,8 +57,9 @@ pub struct SdfModel {
     pub(crate) mlp: MlpSettings,
     pub(crate) seed: u64,
     /// Φ baked into a grid for the multi-start ([`crate::field::baked`]): made by
-    /// [`SdfModel::fit`], or by the first registration of a loaded model; derived from Φ
-    /// alone, so it is not stored in files.
+    /// [`SdfModel::fit`] for an object's (global) model, else by the first registration that
+    /// runs the multi-start (a scene's model registered from a given pose never needs it);
+    /// derived from Φ alone, so it is not stored in files.
     pub(crate) grid: OnceLock<Arc<BakedGrid>>,
     /// The polish planes at the target's points (a scene's, or an object's with
     /// [`crate::PolishSettings::target_planes`]), computed by the registrations as they
@@ -101,7 +102,11 @@ impl SdfModel {
                 planes: SharedPlanes::default(),
                 corners: OnceLock::new(),
             };
-            model.baked_grid();
+            // An object's registrations read the grid at once (the multi-start); a scene's only
+            // from no pose, so its grid waits for the first that does.
+            if model.fitter.field().grid().is_none() {
+                model.baked_grid();
+            }
             model.baked_corners();
             Ok(model)
         })?
@@ -109,35 +114,33 @@ impl SdfModel {
 
     /// Φ baked into a grid (made on the first call).
     pub(crate) fn baked_grid(&self) -> &BakedGrid {
-        self.grid.get_or_init(|| {
-            Arc::new(BakedGrid::bake(
-                self.fitter.field(),
-                BAKED_CELLS,
-                BAKED_HALF_EXTENT,
-            ))
-        })
+        crate::field::baked::baked_once(&self.grid, self.fitter.field())
     }
 
     /// Φ at the corners of a local model's grid (made on the first call); empty for a global
     /// model.
     pub(crate) fn baked_corners(&self) -> &[f32] {
-        self.corners
-            .get_or_init(|| match self.fitter.field().grid() {
-                Some(grid) => {
-                    crate::field::Field::eval_points(
-                        self.fitter.field(),
-                        &grid.corner_positions(),
-                        false,
-                    )
-                    .0
-                }
-                None => Vec::new(),
-            })
+        if let Some(corners) = self.corners.get() {
+            return corners;
+        }
+        // Not computed within `get_or_init`: see `crate::field::baked::baked_once`.
+        let corners = match self.fitter.field().grid() {
+            Some(grid) => {
+                crate::field::Field::eval_points(
+                    self.fitter.field(),
+                    &grid.corner_positions(),
+                    false,
+                )
+                .0
+            }
+            None => Vec::new(),
+        };
+        self.corners.get_or_init(|| corners)
     }
 
     /// The model as the registration stages see it with Φ frozen.
     pub(crate) fn frozen(&self) -> WithGrid<'_, SdfFitter> {
-        let frozen = WithGrid::new(&self.fitter, self.baked_grid()).with_planes(&self.planes);
+        let frozen = WithGrid::lazy(&self.fitter, &self.grid).with_planes(&self.planes);
         match self.fitter.field().grid() {
             Some(grid) => frozen.with_sparse(SparseBaked::new(grid, self.baked_corners())),
             None => frozen,
@@ -473,5 +476,79 @@ mod tests {
         let frozen = model.register(&source, None, &s).unwrap();
         let (rot, tr) = crate::geometry::se3::pose_errors(&frozen.t_target_source, &m.inverse());
         assert!(rot < 0.5 && tr < 0.005, "frozen Φ: {rot}°, {tr}");
+    }
+
+    #[test]
+    fn a_scene_model_bakes_its_multistart_grid_only_when_a_registration_needs_it() {
+        let pair = crate::sim::lidar::street_pair();
+        let s = RegisterSettings::default();
+        let model = SdfModel::fit(&pair.target, &s).unwrap();
+        assert_eq!(model.kind(), ModelKind::Local);
+        assert!(model.grid.get().is_none(), "a scene's fit bakes no grid");
+        let path = std::path::Path::new("street.sdfm");
+        let lazy = SdfModel::from_bytes(&model.to_bytes(), path).unwrap();
+        let eager = SdfModel::from_bytes(&model.to_bytes(), path).unwrap();
+        eager.baked_grid();
+        // From a given pose: no multi-start, so no grid; the same answer as with one.
+        let guess = Some(&pair.t_target_source);
+        let given = lazy.register(&pair.source, guess, &s).unwrap();
+        assert!(
+            lazy.grid.get().is_none(),
+            "baked for a registration from a pose"
+        );
+        let with_grid = eager.register(&pair.source, guess, &s).unwrap();
+        assert_eq!(given.t_target_source, with_grid.t_target_source);
+        // From nothing: the multi-start bakes it, the same grid, the same answer.
+        let found = lazy.register(&pair.source, None, &s).unwrap();
+        assert!(lazy.grid.get().is_some(), "the multi-start baked no grid");
+        assert!(
+            lazy.baked_grid().same_bits(eager.baked_grid()),
+            "another grid"
+        );
+        let with_grid = eager.register(&pair.source, None, &s).unwrap();
+        assert_eq!(found.t_target_source, with_grid.t_target_source);
+        let (rot, tr) =
+            crate::geometry::se3::pose_errors(&found.t_target_source, &pair.t_target_source);
+        assert!(rot < 0.1 && tr < 0.01, "{rot}°, {tr} m");
+    }
+
+    #[test]
+    fn a_loaded_model_registers_from_a_callers_parallel_loop() {
+        // Its grid is baked by the first registration, whose rayon tasks a worker of the
+        // caller's pool may wait on while taking up the next registration, which asks for the
+        // same grid: a cell that waits for its maker would never return here.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let target = crate::sim::shapes::blob(800, &mut rng);
+        let mut s = quick();
+        s.threads = 1;
+        let model = SdfModel::fit(&target, &s).unwrap();
+        let loaded =
+            SdfModel::from_bytes(&model.to_bytes(), std::path::Path::new("blob.sdfm")).unwrap();
+        let m =
+            nalgebra::Isometry3::new(Vector3::new(0.1, -0.2, 0.05), Vector3::new(0.3, 0.2, -0.1));
+        let source: Vec<Point3<f64>> = target.iter().map(|p| m * p).collect();
+        let (send, receive) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            use rayon::prelude::*;
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(2)
+                .build()
+                .unwrap();
+            let poses: Vec<_> = pool.install(|| {
+                (0..6)
+                    .into_par_iter()
+                    .map(|_| loaded.register(&source, None, &s).unwrap().t_target_source)
+                    .collect()
+            });
+            let _ = send.send(poses);
+        });
+        let poses = receive
+            .recv_timeout(std::time::Duration::from_secs(600))
+            .expect("six registrations through a loaded model did not return in 10 minutes");
+        for pose in &poses {
+            assert_eq!(*pose, poses[0]);
+        }
+        let (rot, tr) = crate::geometry::se3::pose_errors(&poses[0], &m.inverse());
+        assert!(rot < 0.5 && tr < 0.005, "{rot}°, {tr}");
     }
 }

@@ -371,6 +371,9 @@ pub(crate) fn initial_hypotheses<S: Surface>(
         // The source where it was given (no centroid alignment): see `scene_as_given`.
         starts.push(Isometry3::identity());
     }
+    // Read once before the starts run side by side: a stored model's grid is baked on its
+    // first read, and each start reading it first would bake a copy.
+    fit.coarse();
     let mut candidates: Vec<(f64, Isometry3<f64>)> = starts
         .par_iter()
         .enumerate()

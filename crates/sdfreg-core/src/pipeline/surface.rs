@@ -1,6 +1,9 @@
 //! The target as the registration stages see it ([`Surface`]): Φ, the target points and their
 //! k-d tree; a fitted Φ is refined by the coarse-to-fine loop, a frozen one ([`WithGrid`]: a
-//! stored model or a mesh) is not, and its multi-start reads Φ baked into a grid.
+//! stored model or a mesh) is not, and its multi-start reads Φ baked into a grid (a stored
+//! model's on its first use).
+
+use std::sync::{Arc, OnceLock};
 
 use crate::field::baked::{Baked, BakedGrid};
 use crate::field::sdf::SdfField;
@@ -106,11 +109,24 @@ impl<F: Field> Field for FrozenPhi<'_, F> {
     }
 }
 
+/// Where a frozen target's multi-start grid comes from.
+#[derive(Clone, Copy)]
+enum GridSource<'a> {
+    /// Baked already.
+    Ready(&'a BakedGrid),
+    /// Baked from Φ on the first read of [`Surface::coarse`], into a cell that outlives the
+    /// registration (a stored model's): a registration from a given pose through a scene's
+    /// model, which runs no multi-start, never bakes it.
+    Lazy(&'a OnceLock<Arc<BakedGrid>>),
+}
+
 /// A target whose Φ is fixed, as the registration stages see it: nothing is refined, and the
-/// multi-start's first round reads Φ baked into `grid`.
+/// multi-start's first round reads Φ baked into a grid.
 pub(crate) struct WithGrid<'a, S: Surface> {
     surface: &'a S,
-    baked: Baked<'a, S::Phi>,
+    grid: GridSource<'a>,
+    /// The multi-start's field, made on its first read.
+    baked: OnceLock<Baked<'a, S::Phi>>,
     phi: FrozenPhi<'a, S::Phi>,
     /// The model's planes at the target's points, kept across registrations.
     planes: Option<&'a SharedPlanes>,
@@ -119,12 +135,20 @@ pub(crate) struct WithGrid<'a, S: Surface> {
 impl<'a, S: Surface> WithGrid<'a, S> {
     /// `surface` with its Φ's `grid`.
     pub(crate) fn new(surface: &'a S, grid: &'a BakedGrid) -> Self {
+        Self::with_source(surface, GridSource::Ready(grid))
+    }
+
+    /// `surface` with its Φ baked into `cell` ([`crate::field::baked::baked_once`]) when the
+    /// multi-start first reads it.
+    pub(crate) fn lazy(surface: &'a S, cell: &'a OnceLock<Arc<BakedGrid>>) -> Self {
+        Self::with_source(surface, GridSource::Lazy(cell))
+    }
+
+    fn with_source(surface: &'a S, grid: GridSource<'a>) -> Self {
         Self {
             surface,
-            baked: Baked {
-                grid,
-                exact: surface.phi(),
-            },
+            grid,
+            baked: OnceLock::new(),
             phi: FrozenPhi::Exact(surface.phi()),
             planes: None,
         }
@@ -150,7 +174,8 @@ impl<S: Surface> Clone for WithGrid<'_, S> {
     fn clone(&self) -> Self {
         Self {
             surface: self.surface,
-            baked: self.baked,
+            grid: self.grid,
+            baked: self.baked.clone(),
             phi: self.phi.clone(),
             planes: self.planes,
         }
@@ -164,7 +189,16 @@ impl<'a, S: Surface> Surface for WithGrid<'a, S> {
         &self.phi
     }
     fn coarse(&self) -> &Baked<'a, S::Phi> {
-        &self.baked
+        if let Some(baked) = self.baked.get() {
+            return baked;
+        }
+        let exact: &'a S::Phi = self.surface.phi();
+        let grid = match self.grid {
+            GridSource::Ready(grid) => grid,
+            GridSource::Lazy(cell) => crate::field::baked::baked_once(cell, exact),
+        };
+        // Not baked within `get_or_init` (see `baked_once`); a racing reader's copy is the same.
+        self.baked.get_or_init(|| Baked { grid, exact })
     }
     fn target(&self) -> &[[f32; 3]] {
         self.surface.target()
