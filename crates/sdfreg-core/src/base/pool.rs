@@ -8,7 +8,7 @@
 //! Linux) inherits the pools but not their threads: it leaves them alone and starts its own.
 
 use std::cell::RefCell;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use rayon::ThreadPool;
 
@@ -24,6 +24,22 @@ struct Pools {
 thread_local! {
     /// This thread's pools.
     static POOLS: RefCell<Pools> = RefCell::new(Pools::default());
+}
+
+/// The value in `cell`, made by `make` when the cell is empty: for a cell shared by
+/// registrations (a stored model's) whose maker runs rayon tasks.
+///
+/// Not `OnceLock::get_or_init`: a worker waiting on the maker's tasks may take up another task
+/// that asks for the same cell (registrations through one model run from a caller's own
+/// parallel loop), and `get_or_init` would wait there forever on its own maker. Such a reader
+/// makes a value of its own instead and the first one stored is kept, so `make` must give the
+/// same value wherever it runs.
+pub(crate) fn get_or_make<T>(cell: &OnceLock<T>, make: impl FnOnce() -> T) -> &T {
+    if let Some(value) = cell.get() {
+        return value;
+    }
+    let value = make();
+    cell.get_or_init(|| value)
 }
 
 /// Runs `f` in a pool of `threads` workers (0 = one per core), never rayon's global one: the

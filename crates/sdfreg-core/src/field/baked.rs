@@ -31,21 +31,16 @@ pub const BAKED_CELLS: usize = 48;
 pub const BAKED_HALF_EXTENT: f32 = 0.75;
 
 /// The grid in `cell`, baked from `field` ([`BAKED_CELLS`], [`BAKED_HALF_EXTENT`]) when the cell
-/// is empty: a stored model's, made on its first read and kept for the next registrations.
-///
-/// Not `OnceLock::get_or_init`: the bake runs rayon tasks, and a worker waiting on them may take
-/// up another task that asks for the same cell (registrations through one model run from a
-/// caller's own parallel loop), which `get_or_init` would wait on forever. Such a reader bakes a
-/// grid of its own instead, the same bits from the same field, and the first grid stored is kept.
+/// is empty: a stored model's, made on its first read and kept for the next registrations. The
+/// bake runs rayon tasks: see [`crate::base::pool::get_or_make`] (the same field bakes the same
+/// bits wherever it runs).
 pub(crate) fn baked_once<'c, F: Field + ?Sized>(
     cell: &'c OnceLock<Arc<BakedGrid>>,
     field: &F,
 ) -> &'c BakedGrid {
-    if let Some(grid) = cell.get() {
-        return grid;
-    }
-    let grid = Arc::new(BakedGrid::bake(field, BAKED_CELLS, BAKED_HALF_EXTENT));
-    cell.get_or_init(|| grid)
+    crate::base::pool::get_or_make::<Arc<BakedGrid>>(cell, || {
+        Arc::new(BakedGrid::bake(field, BAKED_CELLS, BAKED_HALF_EXTENT))
+    })
 }
 
 /// Φ and ∇Φ sampled at the nodes of a regular grid (unit frame).

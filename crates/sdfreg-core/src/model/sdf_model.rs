@@ -120,22 +120,20 @@ impl SdfModel {
     /// Φ at the corners of a local model's grid (made on the first call); empty for a global
     /// model.
     pub(crate) fn baked_corners(&self) -> &[f32] {
-        if let Some(corners) = self.corners.get() {
-            return corners;
-        }
-        // Not computed within `get_or_init`: see `crate::field::baked::baked_once`.
-        let corners = match self.fitter.field().grid() {
-            Some(grid) => {
-                crate::field::Field::eval_points(
-                    self.fitter.field(),
-                    &grid.corner_positions(),
-                    false,
-                )
-                .0
+        // Evaluated by rayon tasks: see `get_or_make`.
+        crate::base::pool::get_or_make::<Vec<f32>>(&self.corners, || {
+            match self.fitter.field().grid() {
+                Some(grid) => {
+                    crate::field::Field::eval_points(
+                        self.fitter.field(),
+                        &grid.corner_positions(),
+                        false,
+                    )
+                    .0
+                }
+                None => Vec::new(),
             }
-            None => Vec::new(),
-        };
-        self.corners.get_or_init(|| corners)
+        })
     }
 
     /// The model as the registration stages see it with Φ frozen.
@@ -516,7 +514,8 @@ mod tests {
     fn a_loaded_model_registers_from_a_callers_parallel_loop() {
         // Its grid is baked by the first registration, whose rayon tasks a worker of the
         // caller's pool may wait on while taking up the next registration, which asks for the
-        // same grid: a cell that waits for its maker would never return here.
+        // same grid (a cell that waits for its maker could then wait on itself; rare here, see
+        // `field::baked`'s test that asks from within the bake). Every answer the same.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
         let target = crate::sim::shapes::blob(800, &mut rng);
         let mut s = quick();

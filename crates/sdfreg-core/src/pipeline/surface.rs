@@ -189,16 +189,15 @@ impl<'a, S: Surface> Surface for WithGrid<'a, S> {
         &self.phi
     }
     fn coarse(&self) -> &Baked<'a, S::Phi> {
-        if let Some(baked) = self.baked.get() {
-            return baked;
-        }
-        let exact: &'a S::Phi = self.surface.phi();
-        let grid = match self.grid {
-            GridSource::Ready(grid) => grid,
-            GridSource::Lazy(cell) => crate::field::baked::baked_once(cell, exact),
-        };
-        // Not baked within `get_or_init` (see `baked_once`); a racing reader's copy is the same.
-        self.baked.get_or_init(|| Baked { grid, exact })
+        // A lazy grid is baked by rayon tasks: see `get_or_make`.
+        crate::base::pool::get_or_make(&self.baked, || {
+            let exact: &'a S::Phi = self.surface.phi();
+            let grid = match self.grid {
+                GridSource::Ready(grid) => grid,
+                GridSource::Lazy(cell) => crate::field::baked::baked_once(cell, exact),
+            };
+            Baked { grid, exact }
+        })
     }
     fn target(&self) -> &[[f32; 3]] {
         self.surface.target()
