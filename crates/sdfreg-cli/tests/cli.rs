@@ -317,7 +317,16 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
     let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
     text.insert_str(0, "nan nan nan\n");
     text.push_str("1 NaN 2\n");
-    std::fs::write(dir.path().join("holes.xyz"), text).unwrap();
+    std::fs::write(dir.path().join("holes.xyz"), &text).unwrap();
+    // The same as an ascii PLY as Open3D writes it: `nan` for a missing return.
+    let rows: Vec<&str> = text.lines().collect();
+    let ply = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\n\
+         property double z\nend_header\n{}\n",
+        rows.len(),
+        rows.join("\n")
+    );
+    std::fs::write(dir.path().join("holes.ply"), ply).unwrap();
     let tgt = dir.path().join("tgt.ply");
     let refused = sdfreg()
         .arg("register")
@@ -331,7 +340,23 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         err.contains("holes.xyz:1: point 0 has a non-finite coordinate"),
         "{err}"
     );
-    for (source, extra) in [("holes.xyz", Some("--drop-non-finite")), ("src.pcd", None)] {
+    let refused = sdfreg()
+        .arg("register")
+        .arg(dir.path().join("holes.ply"))
+        .arg(&tgt)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("holes.ply:8: point 0 has a non-finite coordinate"),
+        "{err}"
+    );
+    for (source, extra) in [
+        ("holes.xyz", Some("--drop-non-finite")),
+        ("holes.ply", Some("--drop-non-finite")),
+        ("src.pcd", None),
+    ] {
         let out = sdfreg()
             .arg("register")
             .arg(dir.path().join(source))
@@ -342,7 +367,10 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{err}");
         if extra.is_some() {
-            assert!(err.contains("holes.xyz: dropped 2 of 802 points"), "{err}");
+            assert!(
+                err.contains(&format!("{source}: dropped 2 of 802 points")),
+                "{err}"
+            );
         }
         let m = parse_matrix(&String::from_utf8_lossy(&out.stdout));
         let (rot, tr) = pose_errors(&isometry_from_matrix(&m).unwrap(), &truth);

@@ -63,3 +63,19 @@ def test_pcd_as_pcl_writes_it_with_nan_for_missing_returns(tmp_path: Path) -> No
     with pytest.warns(UserWarning, match=r"o\.pcd: dropped 1 of 4 points"):
         points = sdfreg.read_point_cloud(tmp_path / "o.pcd", drop_non_finite=True)
     np.testing.assert_array_equal(points, [[1, 0.5, -1], [3, 2, 0], [4, 2, 1]])
+
+
+def test_ascii_ply_as_open3d_writes_it_with_nan_for_missing_returns(tmp_path: Path) -> None:
+    """Open3D's (and PCL's) ascii PLY spells a missing return and an undefined normal `nan`."""
+    header = (
+        "ply\nformat ascii 1.0\ncomment Created by Open3D\nelement vertex 4\n"
+        "property double x\nproperty double y\nproperty double z\n"
+        "property double nx\nproperty double ny\nproperty double nz\nend_header\n"
+    )
+    rows = "1 0.5 -1 0 0 1\nnan nan nan 0 0 1\n3 2 .5 nan nan nan\n4 2 1 -nan inf -inf\n"
+    (tmp_path / "o.ply").write_text(header + rows)
+    with pytest.raises(OSError, match=r"o\.ply:13: point 1 has a non-finite coordinate"):
+        sdfreg.read_point_cloud(tmp_path / "o.ply")
+    with pytest.warns(UserWarning, match=r"o\.ply: dropped 1 of 4 points"):
+        points = sdfreg.read_point_cloud(tmp_path / "o.ply", drop_non_finite=True)
+    np.testing.assert_array_equal(points, [[1, 0.5, -1], [3, 2, 0.5], [4, 2, 1]])

@@ -79,7 +79,8 @@ pub fn read_point_cloud_dropping_non_finite(
 }
 
 /// Reads a PLY file's vertices and triangles (polygons split into fans; none for a point
-/// cloud). Refuses other formats and non-finite vertices.
+/// cloud). Refuses other formats and non-finite vertices (naming the vertex and, in an ascii
+/// file, its line).
 pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
     let path = path.as_ref();
     if Format::of(path)? != Format::Ply {
@@ -93,10 +94,7 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
         path: path.to_path_buf(),
         source,
     })?;
-    let (vertices, triangles) =
-        ply::read_mesh(path, std::io::BufReader::with_capacity(1 << 20, file))?;
-    refuse_non_finite(&vertices, path)?;
-    Ok((vertices, triangles))
+    ply::read_mesh(path, std::io::BufReader::with_capacity(1 << 20, file))
 }
 
 /// Reads a PLY mesh and samples `n` points uniformly by area on its faces (seeded) instead of
@@ -187,7 +185,7 @@ fn parse(
     keep_non_finite: bool,
 ) -> Result<Vec<Point3<f64>>, IoError> {
     let points = match format {
-        Format::Ply => ply::read(path, reader)?,
+        Format::Ply => ply::read(path, reader, keep_non_finite)?,
         Format::Pcd => pcd::read(path, reader, available)?,
         Format::Xyz => {
             let mut bytes = Vec::new();

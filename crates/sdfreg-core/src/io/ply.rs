@@ -4,7 +4,14 @@
 //! Errors name the place: the line for the header and ascii bodies, the byte offset for binary
 //! bodies (counted by [`Counting`] as the parser consumes the stream), and what the header
 //! declared. Data after the last declared element is an error (the counts are wrong).
+//!
+//! An ascii body may spell a number in ways ply-rs's grammar refuses but a float parser reads:
+//! `nan`, `-nan`, `inf`, `infinity` in any case (Open3D's and PCL's ascii writers put them where a
+//! scanner had no return or a normal is undefined), `.5`, `5.`. [`respelled_line`] spells each
+//! such number so that the grammar reads the same value, and a point with a NaN or infinite
+//! coordinate is then refused by its line, or dropped, as in any other format.
 
+use std::borrow::Cow;
 use std::io::{BufRead, Read};
 use std::path::Path;
 
@@ -133,15 +140,151 @@ impl Row for MeshRow {
 pub type MeshData = (Vec<Point3<f64>>, Vec<[usize; 3]>);
 
 /// Vertices and triangles (polygons split into fans) of a PLY stream; `path` names it in errors.
+/// A vertex with a NaN or infinite coordinate is an error naming it.
 pub(super) fn read_mesh(path: &Path, reader: impl BufRead) -> Result<MeshData, IoError> {
-    read_elements::<MeshRow>(path, reader)
+    let ((vertices, triangles), first_line) = read_elements::<MeshRow>(path, reader)?;
+    refuse_non_finite(path, &vertices, first_line)?;
+    Ok((vertices, triangles))
 }
 
 /// Reads the `vertex` element's `x`, `y`, `z` from a PLY stream; `path` names it in errors.
 /// Every element is parsed (a truncated file is an error even after its vertices), but only the
-/// coordinates are kept.
-pub(super) fn read(path: &Path, reader: impl BufRead) -> Result<Vec<Point3<f64>>, IoError> {
-    Ok(read_elements::<Xyz>(path, reader)?.0)
+/// coordinates are kept. A point with a NaN or infinite coordinate is an error naming it (and,
+/// in an ascii file, its line) unless `keep_non_finite`.
+pub(super) fn read(
+    path: &Path,
+    reader: impl BufRead,
+    keep_non_finite: bool,
+) -> Result<Vec<Point3<f64>>, IoError> {
+    let ((points, _), first_line) = read_elements::<Xyz>(path, reader)?;
+    if !keep_non_finite {
+        refuse_non_finite(path, &points, first_line)?;
+    }
+    Ok(points)
+}
+
+/// The first of `points` with a NaN or infinite coordinate as an error naming `path` and, when
+/// the `vertex` rows are lines from `first_line` on (ascii), its line.
+fn refuse_non_finite(
+    path: &Path,
+    points: &[Point3<f64>],
+    first_line: Option<u64>,
+) -> Result<(), IoError> {
+    match points
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        Some(index) => Err(IoError::NonFinite {
+            path: path.into(),
+            line: first_line.map(|l| l as usize + index),
+            index,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// `line` of an ascii body with each number that ply-rs's grammar
+/// (`[+-]?D+(.D+)?([eE][+-]?D+)?`) refuses but Rust's float parser reads spelled anew with the
+/// same value: a missing integer part as `0`, a missing fraction without its point, NaN and
+/// infinities as `1e999` or `-1e999` (which ply-rs reads as infinite: a point with either is
+/// non-finite, and is refused or dropped as such). Other text is left as it is, for the parser
+/// to refuse.
+fn respelled_line(line: &str) -> Cow<'_, str> {
+    if !mendable(line.as_bytes()) {
+        return Cow::Borrowed(line);
+    }
+    let mut out = String::with_capacity(line.len() + 8);
+    let mut rest = line;
+    while !rest.is_empty() {
+        let token_at = rest
+            .find(|c: char| !c.is_ascii_whitespace())
+            .unwrap_or(rest.len());
+        out.push_str(&rest[..token_at]);
+        rest = &rest[token_at..];
+        let gap_at = rest
+            .find(|c: char| c.is_ascii_whitespace())
+            .unwrap_or(rest.len());
+        let token = &rest[..gap_at];
+        match respelled(token.as_bytes()) {
+            Some(number) => out.push_str(&number),
+            None => out.push_str(token),
+        }
+        rest = &rest[gap_at..];
+    }
+    Cow::Owned(out)
+}
+
+/// Whether `line` holds what a respelling can mend: a letter other than an exponent's (`nan`,
+/// `inf`), or a point without a digit on either side (`.5`, `5.`). Most lines have neither; two
+/// passes over the bytes without early exits tell (about a fifth of the time ply-rs's grammar takes
+/// on the same lines).
+fn mendable(line: &[u8]) -> bool {
+    let digit = |b: u8| b.wrapping_sub(b'0') < 10;
+    let letter = |b: u8| {
+        let lower = b | 0x20;
+        (lower.wrapping_sub(b'a') < 26) & (lower != b'e')
+    };
+    let mut found = line.iter().fold(false, |found, &b| found | letter(b));
+    for k in 1..line.len().saturating_sub(1) {
+        found |= (line[k] == b'.') & !(digit(line[k - 1]) & digit(line[k + 1]));
+    }
+    found | (line.first() == Some(&b'.')) | (line.len() > 1 && line[line.len() - 1] == b'.')
+}
+
+/// Whether ply-rs's ascii grammar reads `token` as a number: `[+-]?D+(.D+)?([eE][+-]?D+)?`.
+fn in_grammar(token: &[u8]) -> bool {
+    fn digits(s: &[u8]) -> usize {
+        s.iter().take_while(|b| b.is_ascii_digit()).count()
+    }
+    let mut s = token
+        .strip_prefix(b"-")
+        .or(token.strip_prefix(b"+"))
+        .unwrap_or(token);
+    let n = digits(s);
+    if n == 0 {
+        return false;
+    }
+    s = &s[n..];
+    if let Some(fraction) = s.strip_prefix(b".") {
+        let n = digits(fraction);
+        if n == 0 {
+            return false;
+        }
+        s = &fraction[n..];
+    }
+    if let Some(exponent) = s.strip_prefix(b"e").or(s.strip_prefix(b"E")) {
+        let exponent = exponent
+            .strip_prefix(b"-")
+            .or(exponent.strip_prefix(b"+"))
+            .unwrap_or(exponent);
+        let n = digits(exponent);
+        return n > 0 && n == exponent.len();
+    }
+    s.is_empty()
+}
+
+/// `token` spelled so that the grammar reads the value Rust's float parser reads from it (see
+/// [`respelled_line`]); `None` when that parser refuses it too, or the grammar would still.
+fn respelled(token: &[u8]) -> Option<String> {
+    let text = std::str::from_utf8(token).ok()?;
+    let value: f64 = text.parse().ok()?;
+    if !value.is_finite() {
+        let negative = value.is_sign_negative() || text.starts_with('-');
+        return Some(if negative { "-1e999" } else { "1e999" }.into());
+    }
+    let (sign, unsigned) = match text.as_bytes()[0] {
+        b'-' | b'+' => text.split_at(1),
+        _ => ("", text),
+    };
+    let (mantissa, exponent) = match unsigned.find(['e', 'E']) {
+        Some(k) => (&unsigned[..k], &unsigned[k..]),
+        None => (unsigned, ""),
+    };
+    let (whole, fraction) = mantissa.split_once('.').unwrap_or((mantissa, ""));
+    let whole = if whole.is_empty() { "0" } else { whole };
+    let point = if fraction.is_empty() { "" } else { "." };
+    let number = format!("{sign}{whole}{point}{fraction}{exponent}");
+    in_grammar(number.as_bytes()).then_some(number)
 }
 
 /// A stream that counts the bytes and, while `lines` is on, the line ends the parser consumed.
@@ -203,14 +346,14 @@ fn row_size(def: &ElementDef) -> Option<u64> {
         .sum()
 }
 
-/// The part of a ply-rs message before its debug details, and the offending text it quotes.
-fn ply_rs_message(e: &std::io::Error) -> (String, Option<String>) {
+/// The part of a ply-rs message before its debug details.
+fn ply_rs_message(e: &std::io::Error) -> String {
     let text = e.to_string();
-    let head = text.split(['\t', '\n']).next().unwrap_or("").trim();
-    let quoted = text
-        .split_once("String: '")
-        .and_then(|(_, rest)| rest.split_once('\'').map(|(q, _)| q.trim().to_string()));
-    (head.to_string(), quoted)
+    text.split(['\t', '\n'])
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_string()
 }
 
 /// A parse error of `path` at `line` (one-based, when known).
@@ -223,8 +366,12 @@ fn parse_error(path: &Path, line: Option<u64>, message: String) -> IoError {
 }
 
 /// Points and triangles (fans of the polygons) of a PLY file: the header, each element's rows,
-/// nothing after the last element.
-fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<MeshData, IoError> {
+/// nothing after the last element; with the line of the first `vertex` row when the body is
+/// ascii (a row a line).
+fn read_elements<E: Row>(
+    path: &Path,
+    reader: impl BufRead,
+) -> Result<(MeshData, Option<u64>), IoError> {
     let parse = |message: String| parse_error(path, None, message);
     let mut reader = Counting {
         inner: reader,
@@ -237,7 +384,6 @@ fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<MeshData, 
         .read_header(&mut reader)
         .map_err(|e| header_error(path, &e))?;
     let ascii = header.encoding == Encoding::Ascii;
-    reader.lines = ascii;
     let vertex = header
         .elements
         .get("vertex")
@@ -249,27 +395,39 @@ fn read_elements<E: Row>(path: &Path, reader: impl BufRead) -> Result<MeshData, 
             )));
         }
     }
+    // Lines read so far (ascii): the body's are counted by the rows, not by the reader.
+    let mut lines = reader.line_ends;
+    reader.lines = false;
     let mut points = Vec::new();
     let mut face_rows = Vec::new();
+    let mut first_line = None;
     for (name, def) in &header.elements {
-        let start = (reader.bytes, reader.line_ends);
-        let rows = parser
-            .read_payload_for_element(&mut reader, def, &header)
-            .map_err(|e| payload_error(path, &e, def, ascii, start, &reader))?;
+        let start = (reader.bytes, lines);
+        let rows = if ascii {
+            ascii_rows(path, &parser, &mut reader, def, &mut lines)?
+        } else {
+            parser
+                .read_payload_for_element(&mut reader, def, &header)
+                .map_err(|e| binary_error(path, &e, def, start.0, reader.bytes))?
+        };
         match name.as_str() {
             "face" => face_rows = rows,
-            "vertex" => points = vertices(&rows).map_err(parse)?,
+            "vertex" => {
+                points = vertices(&rows).map_err(parse)?;
+                first_line = ascii.then_some(start.1 + 1);
+            }
             _ => {}
         }
     }
+    (reader.lines, reader.line_ends) = (ascii, lines);
     refuse_trailing_data(path, &mut reader, &header, ascii)?;
     let triangles = triangles(&face_rows, points.len()).map_err(parse)?;
-    Ok((points, triangles))
+    Ok(((points, triangles), first_line))
 }
 
 /// ply-rs's header error, with the line it names.
 fn header_error(path: &Path, e: &std::io::Error) -> IoError {
-    let (head, _) = ply_rs_message(e);
+    let head = ply_rs_message(e);
     // ply-rs counts header lines from 1 as "Line N: ...".
     let line = head
         .strip_prefix("Line ")
@@ -284,70 +442,84 @@ fn header_error(path: &Path, e: &std::io::Error) -> IoError {
     parse_error(path, line, format!("not a valid PLY header: {what}"))
 }
 
-/// ply-rs's error inside the rows of element `def`, which started at `start` (byte, line ends):
-/// the line and row (ascii) or the byte, row and the element's extent (binary).
-fn payload_error<R: BufRead>(
+/// The `count` rows of element `def` in an ascii body, a line each, read from the line after
+/// `lines` (the lines read so far, advanced by those read here); each line's numbers are spelled
+/// for ply-rs's grammar first ([`respelled_line`]).
+fn ascii_rows<E: Row>(
     path: &Path,
-    e: &std::io::Error,
+    parser: &Parser<E>,
+    reader: &mut impl BufRead,
     def: &ElementDef,
-    ascii: bool,
-    (start_byte, start_line): (u64, u64),
-    reader: &Counting<R>,
-) -> IoError {
-    let (head, quoted) = ply_rs_message(e);
-    let eof = head.contains("end of file");
+    lines: &mut u64,
+) -> Result<Vec<E>, IoError> {
     let (name, declared) = (&def.name, def.count);
-    match (ascii, eof) {
-        (true, true) => parse_error(
-            path,
-            Some(reader.line_ends + 1),
-            format!(
-                "the file ends after {} of the {declared} `{name}` rows the header declares",
-                reader.line_ends - start_line
-            ),
-        ),
-        (true, false) => parse_error(
-            path,
-            Some(reader.line_ends),
-            format!(
-                "`{name}` row {}: expected {} numbers as the header declares{}",
-                (reader.line_ends - start_line).saturating_sub(1),
-                def.properties.len(),
-                quoted.map(|q| format!(", found {q:?}")).unwrap_or_default()
-            ),
-        ),
-        (false, _) => {
-            let size = row_size(def);
-            let row = size
-                .map(|b| {
-                    let row = (reader.bytes - start_byte) / b;
-                    format!(" row {row} (0-based) of the {declared} declared")
-                })
-                .unwrap_or_default();
-            let what = if eof {
-                "the file ends"
-            } else {
-                "unreadable data"
-            };
-            let extent = size
-                .map(|b| {
-                    format!(
-                        " and needs {declared} rows of {b} bytes = {} bytes",
-                        declared as u64 * b
-                    )
-                })
-                .unwrap_or_default();
-            parse_error(
+    let mut rows = Vec::with_capacity(declared.min(1 << 20));
+    let mut line = String::new();
+    for row in 0..declared {
+        line.clear();
+        let read = reader
+            .read_line(&mut line)
+            .map_err(|e| parse_error(path, Some(*lines + 1), format!("`{name}` row {row}: {e}")))?;
+        if read == 0 {
+            return Err(parse_error(
                 path,
-                None,
+                Some(*lines + 1),
                 format!(
-                    "byte {}: {what} inside `{name}`{row}; the element starts at byte \
-                     {start_byte}{extent}",
-                    reader.bytes
+                    "the file ends after {row} of the {declared} `{name}` rows the header declares"
                 ),
-            )
+            ));
         }
+        *lines += 1;
+        let element = parser
+            .read_ascii_element(&respelled_line(&line), def)
+            .map_err(|_| {
+                parse_error(
+                    path,
+                    Some(*lines),
+                    format!(
+                        "`{name}` row {row}: expected {} numbers as the header declares, found {:?}",
+                        def.properties.len(),
+                        line.trim()
+                    ),
+                )
+            })?;
+        rows.push(element);
     }
+    Ok(rows)
+}
+
+/// ply-rs's error inside the binary rows of element `def`, which started at byte `start`, when
+/// the reader stopped at byte `at`: the byte, the row and the element's extent.
+fn binary_error(path: &Path, e: &std::io::Error, def: &ElementDef, start: u64, at: u64) -> IoError {
+    let head = ply_rs_message(e);
+    let (name, declared) = (&def.name, def.count);
+    let size = row_size(def);
+    let row = size
+        .map(|b| {
+            let row = (at - start) / b;
+            format!(" row {row} (0-based) of the {declared} declared")
+        })
+        .unwrap_or_default();
+    let what = if head.contains("end of file") {
+        "the file ends"
+    } else {
+        "unreadable data"
+    };
+    let extent = size
+        .map(|b| {
+            format!(
+                " and needs {declared} rows of {b} bytes = {} bytes",
+                declared as u64 * b
+            )
+        })
+        .unwrap_or_default();
+    parse_error(
+        path,
+        None,
+        format!(
+            "byte {at}: {what} inside `{name}`{row}; the element starts at byte {start}{extent}"
+        ),
+    )
 }
 
 /// The `vertex` rows as points; a row without a numeric x, y or z is refused.
@@ -467,7 +639,7 @@ mod tests {
     #[test]
     fn reads_ascii_with_extra_properties_and_elements() {
         let text = "ply\nformat ascii 1.0\ncomment hi\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n1 2 3 255\n4.5 5 6 0\n3 0 1 1\n";
-        let pts = read(Path::new("a.ply"), text.as_bytes()).unwrap();
+        let pts = read(Path::new("a.ply"), text.as_bytes(), false).unwrap();
         assert_eq!(
             pts,
             vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.5, 5.0, 6.0)]
@@ -481,7 +653,7 @@ mod tests {
         b.extend_from_slice(&7i32.to_be_bytes());
         b.extend_from_slice(&0.5f64.to_be_bytes());
         assert_eq!(
-            read(Path::new("b.ply"), &b[..]).unwrap(),
+            read(Path::new("b.ply"), &b[..], false).unwrap(),
             vec![Point3::new(-3.0, 7.0, 0.5)]
         );
     }
@@ -489,14 +661,14 @@ mod tests {
     #[test]
     fn explains_what_is_missing() {
         let text = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n1 2\n";
-        let err = read(Path::new("c.ply"), text.as_bytes())
+        let err = read(Path::new("c.ply"), text.as_bytes(), false)
             .unwrap_err()
             .to_string();
         assert!(
             err.contains("c.ply") && err.contains("no `z` property"),
             "{err}"
         );
-        let err = read(Path::new("d.ply"), &b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n"[..]).unwrap_err().to_string();
+        let err = read(Path::new("d.ply"), &b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n"[..], false).unwrap_err().to_string();
         assert!(
             err.starts_with("d.ply:9: the file ends after 1 of the 3 `vertex` rows"),
             "{err}"
@@ -504,8 +676,117 @@ mod tests {
         // CRLF line ends and a comment read the same.
         let crlf = "ply\r\nformat ascii 1.0\r\ncomment c\r\nelement vertex 2\r\nproperty float x\r\nproperty float y\r\nproperty float z\r\nend_header\r\n1 2 3\r\n4 5 6\r\n";
         assert_eq!(
-            read(Path::new("e.ply"), crlf.as_bytes()).unwrap(),
+            read(Path::new("e.ply"), crlf.as_bytes(), false).unwrap(),
             vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+        );
+    }
+
+    /// An ascii header of `n` vertices with double `x y z` and float normals.
+    fn with_normals(n: usize) -> String {
+        format!("ply\nformat ascii 1.0\ncomment Created by Open3D\nelement vertex {n}\nproperty double x\nproperty double y\nproperty double z\nproperty float nx\nproperty float ny\nproperty float nz\nend_header\n")
+    }
+
+    #[test]
+    fn reads_the_nan_and_inf_that_open3d_and_pcl_write_in_ascii() {
+        // Open3D's ascii writer (through rply's printf) writes a missing return as `nan nan nan`
+        // and PCL an undefined normal as `nan`; glibc spells a negative NaN `-nan`.
+        let text = with_normals(4)
+            + "0.511822 0.950464 0.14416 0 0 1\n"
+            + "nan nan nan nan nan nan\n"
+            + "1 -inf 2 0 1 0\n"
+            + "0.25 0.5 -0.75 -nan NaN Infinity\n";
+        let path = Path::new("o3d.ply");
+        let err = read(path, text.as_bytes(), false).unwrap_err();
+        // 11 header lines: the second vertex row is line 13.
+        assert!(
+            matches!(
+                err,
+                IoError::NonFinite {
+                    line: Some(13),
+                    index: 1,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+        assert_eq!(
+            err.to_string(),
+            "o3d.ply:13: point 1 has a non-finite coordinate"
+        );
+        let points = read(path, text.as_bytes(), true).unwrap();
+        assert_eq!(points.len(), 4);
+        assert_eq!(points[0], Point3::new(0.511822, 0.950464, 0.14416));
+        assert!(points[1].coords.iter().all(|v| v.is_infinite()));
+        assert_eq!(
+            (points[2].x, points[2].y, points[2].z),
+            (1.0, f64::NEG_INFINITY, 2.0)
+        );
+        // Undefined normals beside finite coordinates: the point is read as written.
+        assert_eq!(points[3], Point3::new(0.25, 0.5, -0.75));
+        // A mesh's vertex likewise, by its line.
+        let err = read_mesh(path, text.as_bytes()).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                IoError::NonFinite {
+                    line: Some(13),
+                    index: 1,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+    }
+
+    #[test]
+    fn reads_numbers_without_an_integer_part_or_a_fraction_as_a_float_parser_does() {
+        let text = with_normals(2) + ".5 5. -.25e1 +5.e-1 1E2 -0.\n0.1 1e-3 +.0 0 0 0\n";
+        let points = read(Path::new("forms.ply"), text.as_bytes(), false).unwrap();
+        assert_eq!(
+            points,
+            vec![Point3::new(0.5, 5.0, -2.5), Point3::new(0.1, 1e-3, 0.0)]
+        );
+        for token in ["1", "-2.5", "+3e4", "7.25E-3", "0.0"] {
+            assert!(in_grammar(token.as_bytes()), "{token}");
+            assert_eq!(respelled(token.as_bytes()).as_deref(), Some(token));
+        }
+        for token in [
+            ".5", "5.", "-.5e1", "nan", "inf", "x", "1.2.3", "e5", "1e", "--1", "",
+        ] {
+            assert!(!in_grammar(token.as_bytes()), "{token}");
+        }
+        for (token, spelled) in [
+            (".5", "0.5"),
+            ("5.", "5"),
+            ("-.5e1", "-0.5e1"),
+            ("+5.e-1", "+5e-1"),
+        ] {
+            assert_eq!(respelled(token.as_bytes()).as_deref(), Some(spelled));
+        }
+        for token in ["x", "1.2.3", "0x10", "1,5", "nan(0x1)"] {
+            assert_eq!(respelled(token.as_bytes()), None, "{token}");
+        }
+    }
+
+    #[test]
+    fn a_row_still_unreadable_is_quoted_as_the_file_has_it() {
+        let text = with_normals(2) + "1 2 3 0 0 1\n.5 nan x 0 0 1\n";
+        let err = read(Path::new("bad.ply"), text.as_bytes(), true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("bad.ply:13: `vertex` row 1: expected 6 numbers")
+                && err.contains("found \".5 nan x 0 0 1\""),
+            "{err}"
+        );
+        // An integer property holding NaN is no integer.
+        let ints = "ply\nformat ascii 1.0\nelement vertex 1\nproperty int x\nproperty int y\nproperty int z\nend_header\n1 nan 3\n";
+        let err = read(Path::new("int.ply"), ints.as_bytes(), true)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("int.ply:8: `vertex` row 0") && err.contains("found \"1 nan 3\""),
+            "{err}"
         );
     }
 }
