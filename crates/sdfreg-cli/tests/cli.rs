@@ -245,6 +245,15 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         b.extend_from_slice(body);
         b
     };
+    // A LAS file of the source's points, cut 100 bytes short.
+    let src = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
+    sdfreg_core::io::write_point_cloud(dir.path().join("full.las"), &src).unwrap();
+    let las = std::fs::read(dir.path().join("full.las")).unwrap();
+    let las_points: &'static str = format!(
+        "the file ends inside points 0..{0} of the {0} the header declares",
+        src.len()
+    )
+    .leak();
     let cases: Vec<BadInput> = vec![
         ("empty PLY", "empty.ply", Some(vec![]), vec!["empty.ply", "no points"]),
         ("empty XYZ", "empty.xyz", Some(vec![]), vec!["empty.xyz", "no points"]),
@@ -265,6 +274,10 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         ("binary junk as XYZ", "junk.xyz", Some((0..=255u8).cycle().take(1024).collect()), vec!["junk.xyz", "not UTF-8"]),
         ("truncated binary PCD", "cut.pcd", Some(pcd(&[0u8; 591])), vec!["cut.pcd", "byte 687", "point 49 of the 50"]),
         ("PCD without z", "noz.pcd", Some(b"VERSION 0.7\nFIELDS x y\nSIZE 4 4\nTYPE F F\nCOUNT 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n1 2\n".to_vec()), vec!["noz.pcd", "no `z` field"]),
+        ("NaN in ascii PLY", "nan.ply", Some(ply_ascii(50, &rows_with(10, "1 nan 2"))), vec!["nan.ply:18", "point 10", "non-finite"]),
+        ("truncated LAS", "cut.las", Some(las[..las.len() - 100].to_vec()), vec!["cut.las", las_points]),
+        ("not a LAS", "text.las", Some(b"hello\n".to_vec()), vec!["text.las", "not a LAS file", "\"hell\""]),
+        ("LAZ", "scan.laz", Some(las.clone()), vec!["scan.laz", "LAZ (compressed LAS) is not read", "pdal translate"]),
         ("fewer than 10 points", "few.xyz", Some(rows.lines().take(5).map(|l| format!("{l}\n")).collect::<String>().into_bytes()), vec!["few.xyz", "5 points; at least 10"]),
         ("one repeated point", "same.xyz", Some("1 2 3\n".repeat(50).into_bytes()), vec!["same.xyz", "no extent"]),
         ("unknown extension", "cloud.obj", Some(b"v 1 2 3\n".to_vec()), vec!["cloud.obj", "unknown point-cloud format", ".ply, .pcd"]),

@@ -20,6 +20,19 @@ def test_round_trip_is_exact(tmp_path: Path, name: str) -> None:
     np.testing.assert_array_equal(back, points)
 
 
+def test_las_round_trip_keeps_survey_coordinates_to_its_scale(tmp_path: Path) -> None:
+    """LAS stores 32-bit integers: at a scale of 10⁻⁹–10⁻⁸ of the extent (here ~2 km: 10⁻⁵ m)."""
+    points = blob(300, np.random.default_rng(1)) * 1e3 + np.array([6e5, -4e6, 12.5])
+    sdfreg.write_point_cloud(tmp_path / "a.las", points)
+    back = sdfreg.read_point_cloud(tmp_path / "a.las")
+    assert back.dtype == np.float64 and back.shape == (300, 3)
+    extent = np.ptp(points, axis=0).max()
+    assert np.abs(back - points).max() <= 5e-9 * extent
+    assert (tmp_path / "a.las").read_bytes()[:4] == b"LASF"
+    with pytest.raises(OSError, match=r"b\.laz: LAZ \(compressed LAS\) is not read"):
+        sdfreg.read_point_cloud(tmp_path / "b.laz")
+
+
 def test_paths_may_be_str_or_pathlike_and_float32_is_written(tmp_path: Path) -> None:
     points = blob(50, np.random.default_rng(2)).astype(np.float32)
     sdfreg.write_point_cloud(str(tmp_path / "a.ply"), points)

@@ -1,10 +1,11 @@
 //! Reading and writing point clouds: PLY (ascii and binary, via ply-rs), PCD (ascii, binary and
-//! binary_compressed, via pcd-rs) and XYZ/TXT/CSV text.
+//! binary_compressed, via pcd-rs), LAS (via las-rs) and XYZ/TXT/CSV text.
 //!
 //! Entry points: [`read_point_cloud`] and [`write_point_cloud`], which choose the format from
 //! the file's extension (case-insensitive).
 
 mod bytes;
+mod las;
 mod pcd;
 mod ply;
 mod xyz;
@@ -24,6 +25,9 @@ pub enum Format {
     Ply,
     /// Point Cloud Library PCD: the `x`, `y`, `z` fields (any type).
     Pcd,
+    /// ASPRS LAS (`.las`): each point's scaled `x`, `y`, `z`. LAZ (`.laz`) is refused with what
+    /// to do (its decoder can crash on a damaged file).
+    Las,
     /// Text, one point per line, first three columns separated by spaces, tabs or commas.
     Xyz,
 }
@@ -39,6 +43,12 @@ impl Format {
         match ext.as_str() {
             "ply" => Ok(Format::Ply),
             "pcd" => Ok(Format::Pcd),
+            "las" => Ok(Format::Las),
+            "laz" => Err(IoError::Parse {
+                path: path.to_path_buf(),
+                line: None,
+                message: las::LAZ_REFUSED.into(),
+            }),
             "xyz" | "txt" | "csv" | "pts" => Ok(Format::Xyz),
             _ => Err(IoError::UnknownFormat {
                 path: path.to_path_buf(),
@@ -128,7 +138,8 @@ pub fn parse_point_cloud(
     format: Format,
     name: &Path,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    let points = parse(format, name, bytes, bytes.len() as u64, false)?;
+    let stream = std::io::Cursor::new(bytes.to_vec());
+    let points = parse(format, name, stream, bytes.len() as u64, false)?;
     refuse_non_finite(&points, name)?;
     Ok(points)
 }
@@ -180,13 +191,14 @@ fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoEr
 fn parse(
     format: Format,
     path: &Path,
-    mut reader: impl std::io::BufRead,
+    mut reader: impl std::io::BufRead + std::io::Seek + Send + Sync + 'static,
     available: u64,
     keep_non_finite: bool,
 ) -> Result<Vec<Point3<f64>>, IoError> {
     let points = match format {
         Format::Ply => ply::read(path, reader, keep_non_finite)?,
         Format::Pcd => pcd::read(path, reader, available)?,
+        Format::Las => las::read(path, reader)?,
         Format::Xyz => {
             let mut bytes = Vec::new();
             reader
@@ -207,12 +219,14 @@ fn parse(
 }
 
 /// Writes points to `path` (PLY and PCD: binary little-endian doubles; text: `x y z` lines with
-/// full precision). Overwrites an existing file: callers decide whether that is wanted.
+/// full precision; LAS: 32-bit integers at a scale of 10⁻⁹–10⁻⁸ of the cloud's extent).
+/// Overwrites an existing file: callers decide whether that is wanted.
 pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Result<(), IoError> {
     let path = path.as_ref();
     let bytes = match Format::of(path)? {
         Format::Ply => ply::encode(points),
         Format::Pcd => pcd::encode(points),
+        Format::Las => las::encode(path, points)?,
         Format::Xyz => xyz::encode(points),
     };
     std::fs::write(path, bytes).map_err(|source| IoError::Io {

@@ -1164,7 +1164,9 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
 
     Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
     element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
-    ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three columns).
+    ``.las`` (any version and point format; x, y, z with the file's scale and offset; ``.laz``
+    is refused: decompress it first), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
+    columns).
 
     Args:
         path: The file.
@@ -1180,8 +1182,9 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
 
 def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
     """Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
-    float64; text formats: one ``x y z`` line per point, full precision). An existing file is
-    replaced.
+    float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
+    scale of 10⁻⁹–10⁻⁸ of the cloud's extent; text formats: one ``x y z`` line per point, full
+    precision). An existing file is replaced.
 
     Raises:
         ValueError: ``points`` is not an (N, 3) float array or has a non-finite coordinate.
