@@ -6,12 +6,11 @@
 //! or aborts the process on some corrupted files (found by feeding it damaged copies), and a
 //! damaged input must give an error, not a crash.
 //!
-//! Written files are LAS 1.2, point format 0, with an offset
-//! at the cloud's middle and the finest power-of-ten scale whose integers fit LAS's 32 bits with
-//! room: between 10⁻⁹ and 10⁻⁸ of the cloud's extent (a 100 m scan to 0.1 µm, a 15 cm object to
-//! 1 nm).
+//! Written files are LAS 1.2, point format 0, with an offset at the cloud's middle and the
+//! finest power-of-ten scale whose integers fit LAS's 32 bits with room: between 10⁻⁹ and 10⁻⁸
+//! of the cloud's extent (an 80 m scan to 0.1 µm, a 15 cm object to 1 nm).
 
-use std::io::{Cursor, Read, Seek};
+use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use las::{Builder, Point, Transform, Vector};
@@ -24,8 +23,8 @@ pub(super) const LAZ_REFUSED: &str =
     "LAZ (compressed LAS) is not read: decompress it to .las first \
      (`pdal translate in.laz out.las`, or `laszip -i in.laz -o out.las`)";
 
-/// Points read at a time: a header's point count is not trusted to size one allocation.
-const CHUNK: u64 = 1 << 16;
+/// Bytes of points read at a time: a header's point count is not trusted to size an allocation.
+const CHUNK_BYTES: u64 = 4 << 20;
 
 /// An error of `path` that las-rs reported while reading `what`: the end of the file, a foreign
 /// file's first bytes, or las-rs's own words.
@@ -48,20 +47,55 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
     }
 }
 
+/// Refuses a LAS 1.4 file whose extended record (EVLR) declares more bytes than the file has:
+/// las-rs sizes that record's buffer by the declared length before reading it, so a damaged
+/// length would exhaust the memory. Leaves `stream` at its start.
+fn refuse_oversized_evlr(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError> {
+    let io = |e: std::io::Error| las_error(path, "the LAS header", las::Error::Io(e));
+    let len = stream.seek(SeekFrom::End(0)).map_err(io)?;
+    stream.seek(SeekFrom::Start(0)).map_err(io)?;
+    let raw = las::raw::Header::read_from(&mut *stream)
+        .map_err(|e| las_error(path, "the LAS header", e))?;
+    if let Some(evlr) = raw.evlr {
+        // An EVLR: reserved (2), user id (16), record id (2), then its length (8).
+        let at = evlr.start_of_first_evlr.saturating_add(20);
+        let mut length = [0u8; 8];
+        if at.saturating_add(8) <= len {
+            stream.seek(SeekFrom::Start(at)).map_err(io)?;
+            stream.read_exact(&mut length).map_err(io)?;
+            let declared = u64::from_le_bytes(length);
+            if declared > len {
+                return Err(IoError::Parse {
+                    path: path.into(),
+                    line: None,
+                    message: format!(
+                        "the extended record at byte {} declares {declared} bytes; the file has {len}",
+                        evlr.start_of_first_evlr
+                    ),
+                });
+            }
+        }
+    }
+    stream.seek(SeekFrom::Start(0)).map_err(io)?;
+    Ok(())
+}
+
 /// The points of a LAS stream; `path` names it in errors. A file whose points stop
-/// before the count its header declares is refused with how many were read.
+/// before the count its header declares is refused, naming the points it ends among.
 pub(super) fn read(
     path: &Path,
-    stream: impl Read + Seek + Send + Sync + 'static,
+    mut stream: impl Read + Seek + Send + Sync + 'static,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    let mut reader = las::Reader::new(stream)
-        .map_err(|e| las_error(path, "not a readable LAS/LAZ header", e))?;
+    refuse_oversized_evlr(path, &mut stream)?;
+    let mut reader = las::Reader::new(stream).map_err(|e| las_error(path, "the LAS header", e))?;
     let declared = reader.header().number_of_points();
-    let mut points = Vec::with_capacity(declared.min(CHUNK) as usize);
+    let chunk_points =
+        (CHUNK_BYTES / u64::from(reader.header().point_format().len()).max(1)).max(1);
+    let mut points = Vec::with_capacity(declared.min(chunk_points) as usize);
     while (points.len() as u64) < declared {
         let from = points.len() as u64;
-        let chunk = reader.read_points(CHUNK).map_err(|e| {
-            let to = (from + CHUNK).min(declared);
+        let chunk = reader.read_points(chunk_points).map_err(|e| {
+            let to = (from + chunk_points).min(declared);
             las_error(
                 path,
                 &format!("points {from}..{to} of the {declared} the header declares"),
@@ -186,6 +220,39 @@ mod tests {
         .to_string();
         assert!(
             err.starts_with("ply.las: not a LAS file: it begins with \"ply\\n\""),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn an_extended_record_longer_than_the_file_is_refused_before_it_is_read() {
+        let mut builder = Builder::from((1, 4));
+        builder.evlrs.push(las::Vlr {
+            user_id: "sdfreg".into(),
+            record_id: 1,
+            description: "test".into(),
+            data: vec![7; 100],
+        });
+        let header = builder.into_header().unwrap();
+        let mut writer = las::Writer::new(Cursor::new(Vec::new()), header).unwrap();
+        writer.write_point(Point::default()).unwrap();
+        let mut bytes = writer.into_inner().unwrap().into_inner();
+        assert_eq!(
+            read(Path::new("a.las"), Cursor::new(bytes.clone()))
+                .unwrap()
+                .len(),
+            1
+        );
+        // The EVLR's length, 8 bytes at 20 past its start (the file's last 160 bytes).
+        let at = bytes.len() - 160 + 20;
+        assert_eq!(bytes[at..at + 8], 100u64.to_le_bytes());
+        bytes[at..at + 8].copy_from_slice(&(1u64 << 62).to_le_bytes());
+        let err = read(Path::new("big.las"), Cursor::new(bytes))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("big.las: the extended record at byte")
+                && err.contains(&format!("declares {} bytes", 1u64 << 62)),
             "{err}"
         );
     }
