@@ -278,6 +278,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         ("truncated LAS", "cut.las", Some(las[..las.len() - 100].to_vec()), vec!["cut.las", las_points]),
         ("not a LAS", "text.las", Some(b"hello\n".to_vec()), vec!["text.las", "not a LAS file", "\"hell\""]),
         ("LAZ", "scan.laz", Some(las.clone()), vec!["scan.laz", "LAZ (compressed LAS) is not read", "pdal translate"]),
+        ("PTS cut short", "cut.pts", Some(format!("60\n{rows}").into_bytes()), vec!["cut.pts:1", "point count 60, but 50 rows follow"]),
         ("fewer than 10 points", "few.xyz", Some(rows.lines().take(5).map(|l| format!("{l}\n")).collect::<String>().into_bytes()), vec!["few.xyz", "5 points; at least 10"]),
         ("one repeated point", "same.xyz", Some("1 2 3\n".repeat(50).into_bytes()), vec!["same.xyz", "no extent"]),
         ("unknown extension", "cloud.obj", Some(b"v 1 2 3\n".to_vec()), vec!["cloud.obj", "unknown point-cloud format", ".ply, .pcd"]),

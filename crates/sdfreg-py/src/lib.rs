@@ -219,7 +219,7 @@ fn _settings_keywords() -> std::collections::BTreeMap<&'static str, Vec<&'static
 /// element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
 /// ``.las`` (any version and point format; x, y, z with the file's scale and offset; ``.laz``
 /// is refused: decompress it first), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
-/// columns).
+/// columns; a ``.pts`` block's point-count line is checked against its rows).
 ///
 /// Args:
 ///     path: The file.
@@ -230,7 +230,7 @@ fn _settings_keywords() -> std::collections::BTreeMap<&'static str, Vec<&'static
 /// Raises:
 ///     OSError: the file cannot be read (``FileNotFoundError``, ``PermissionError``, …), its
 ///         format is unknown, or its contents are malformed; the message names the file and,
-///         for text, the line.
+///         for text and ascii PLY, the line.
 #[pyfunction]
 #[pyo3(signature = (path, *, drop_non_finite = false))]
 fn read_point_cloud(
@@ -262,7 +262,7 @@ fn read_point_cloud(
 /// Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
 /// float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
 /// scale of 10⁻⁹–10⁻⁸ of the cloud's extent; text formats: one ``x y z`` line per point, full
-/// precision). An existing file is replaced.
+/// precision, after a point-count line in ``.pts``). An existing file is replaced.
 ///
 /// Raises:
 ///     ValueError: ``points`` is not an (N, 3) float array or has a non-finite coordinate.

@@ -219,7 +219,8 @@ fn parse(
 }
 
 /// Writes points to `path` (PLY and PCD: binary little-endian doubles; text: `x y z` lines with
-/// full precision; LAS: 32-bit integers at a scale of 10⁻⁹–10⁻⁸ of the cloud's extent).
+/// full precision, after a point-count line in `.pts`; LAS: 32-bit integers at a scale of
+/// 10⁻⁹–10⁻⁸ of the cloud's extent).
 /// Overwrites an existing file: callers decide whether that is wanted.
 pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Result<(), IoError> {
     let path = path.as_ref();
@@ -227,7 +228,7 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
         Format::Ply => ply::encode(points),
         Format::Pcd => pcd::encode(points),
         Format::Las => las::encode(path, points)?,
-        Format::Xyz => xyz::encode(points),
+        Format::Xyz => xyz::encode(points, xyz::is_pts(path)),
     };
     std::fs::write(path, bytes).map_err(|source| IoError::Io {
         path: path.to_path_buf(),

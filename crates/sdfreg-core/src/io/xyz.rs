@@ -1,6 +1,10 @@
 //! Text clouds: one point per line, `x y z [more columns]`, separated by whitespace or commas.
 //! Empty lines and lines starting with `#` or `//` are skipped; a first line that is not
 //! numeric is taken as a column header.
+//!
+//! Leica's `.pts` begins each scan's block of rows with a line holding its point count (`5`,
+//! then five `x y z intensity r g b` rows; a file may hold several blocks): in a `.pts` file
+//! such a line is read as that count and checked against the rows that follow it.
 
 use std::path::Path;
 
@@ -20,8 +24,11 @@ pub(super) fn read(
         line: None,
         message: format!("not UTF-8 text (byte {})", e.valid_up_to()),
     })?;
+    let pts = is_pts(path);
     let mut points = Vec::new();
     let mut seen_data_line = false;
+    // The open `.pts` block: its count line and count, and the points before it.
+    let mut block: Option<Block> = None;
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
         if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
@@ -31,6 +38,18 @@ pub(super) fn read(
             .split(|c: char| c == ',' || c.is_whitespace())
             .filter(|f| !f.is_empty())
             .collect();
+        if let (true, [count]) = (pts, fields.as_slice()) {
+            if let Ok(count) = count.parse::<usize>() {
+                close_block(path, block.take(), points.len())?;
+                block = Some(Block {
+                    line: i + 1,
+                    count,
+                    before: points.len(),
+                });
+                seen_data_line = true;
+                continue;
+            }
+        }
         let parsed: Vec<Option<f64>> = fields
             .iter()
             .take(3)
@@ -58,11 +77,46 @@ pub(super) fn read(
         }
         points.push(p);
     }
+    close_block(path, block, points.len())?;
     Ok(points)
 }
 
-pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
-    let mut s = String::with_capacity(points.len() * 48);
+/// A `.pts` block: the line of its count, the count, and the points read before it.
+struct Block {
+    line: usize,
+    count: usize,
+    before: usize,
+}
+
+/// Checks that `block` (if any) holds the points its count line says, `read` points having been
+/// read when it ends.
+fn close_block(path: &Path, block: Option<Block>, read: usize) -> Result<(), IoError> {
+    match block {
+        Some(b) if read - b.before != b.count => Err(IoError::Parse {
+            path: path.into(),
+            line: Some(b.line),
+            message: format!(
+                "point count {}, but {} rows follow it",
+                b.count,
+                read - b.before
+            ),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Whether `path` is a Leica `.pts` file (by its extension, in any case).
+pub(super) fn is_pts(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("pts"))
+}
+
+/// `x y z` lines of `points`, after a line of their count when `count_line` (`.pts`).
+pub(super) fn encode(points: &[Point3<f64>], count_line: bool) -> Vec<u8> {
+    let mut s = String::with_capacity(points.len() * 48 + 24);
+    if count_line {
+        s.push_str(&format!("{}\n", points.len()));
+    }
     for p in points {
         // `{}` prints the shortest representation that reads back exactly.
         s.push_str(&format!("{} {} {}\n", p.x, p.y, p.z));
@@ -86,6 +140,39 @@ mod tests {
             pts,
             vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
         );
+    }
+
+    #[test]
+    fn reads_leicas_pts_with_a_count_line_before_each_block() {
+        let text = "2\n1 2 3 -1200 255 0 0\n4 5 6 -1100 0 255 0\n1\n7 8 9 -900 0 0 255\n";
+        let pts = read_strict(Path::new("scan.PTS"), text.as_bytes()).unwrap();
+        assert_eq!(
+            pts,
+            vec![
+                Point3::new(1.0, 2.0, 3.0),
+                Point3::new(4.0, 5.0, 6.0),
+                Point3::new(7.0, 8.0, 9.0)
+            ]
+        );
+        // A block cut short, or longer than its count, names its count line.
+        let cut = "3\n1 2 3\n4 5 6\n";
+        let err = read_strict(Path::new("cut.pts"), cut.as_bytes()).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "cut.pts:1: point count 3, but 2 rows follow it"
+        );
+        let err = read_strict(Path::new("two.pts"), b"1\n1 2 3\n1\n4 5 6\n7 8 9\n").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "two.pts:3: point count 1, but 2 rows follow it"
+        );
+        // Written with its count line, read back to the bit.
+        let written = encode(&pts, true);
+        assert!(written.starts_with(b"3\n"));
+        assert_eq!(read_strict(Path::new("w.pts"), &written).unwrap(), pts);
+        // Elsewhere a lone number is a malformed row, as before.
+        let err = read_strict(Path::new("a.xyz"), b"2\n1 2 3\n4 5 6\n").unwrap_err();
+        assert!(matches!(err, IoError::Parse { line: Some(1), .. }), "{err}");
     }
 
     #[test]
