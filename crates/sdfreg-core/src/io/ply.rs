@@ -453,7 +453,8 @@ fn ascii_rows<E: Row>(
     lines: &mut u64,
 ) -> Result<Vec<E>, IoError> {
     let (name, declared) = (&def.name, def.count);
-    let mut rows = Vec::with_capacity(declared.min(1 << 20));
+    // As ply-rs: a header's count does not size one allocation.
+    let mut rows = Vec::with_capacity(declared.min(1 << 16));
     let mut line = String::new();
     for row in 0..declared {
         line.clear();
