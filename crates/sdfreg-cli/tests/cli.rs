@@ -333,39 +333,26 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
     text.push_str("1 NaN 2\n");
     std::fs::write(dir.path().join("holes.xyz"), &text).unwrap();
     // The same as an ascii PLY as Open3D writes it: `nan` for a missing return.
-    let rows: Vec<&str> = text.lines().collect();
-    let ply = format!(
-        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\n\
-         property double z\nend_header\n{}\n",
-        rows.len(),
-        rows.join("\n")
-    );
+    let ply = ply_ascii(text.lines().count(), &text);
     std::fs::write(dir.path().join("holes.ply"), ply).unwrap();
     let tgt = dir.path().join("tgt.ply");
-    let refused = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("holes.xyz"))
-        .arg(&tgt)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&refused.stderr);
-    assert_eq!(refused.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains("holes.xyz:1: point 0 has a non-finite coordinate"),
-        "{err}"
-    );
-    let refused = sdfreg()
-        .arg("register")
-        .arg(dir.path().join("holes.ply"))
-        .arg(&tgt)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&refused.stderr);
-    assert_eq!(refused.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains("holes.ply:8: point 0 has a non-finite coordinate"),
-        "{err}"
-    );
+    // Refused without `--drop-non-finite`, naming the row's line.
+    for (source, line) in [("holes.xyz", 1), ("holes.ply", 8)] {
+        let refused = sdfreg()
+            .arg("register")
+            .arg(dir.path().join(source))
+            .arg(&tgt)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&refused.stderr);
+        assert_eq!(refused.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains(&format!(
+                "{source}:{line}: point 0 has a non-finite coordinate"
+            )),
+            "{err}"
+        );
+    }
     for (source, extra) in [
         ("holes.xyz", Some("--drop-non-finite")),
         ("holes.ply", Some("--drop-non-finite")),

@@ -5,6 +5,7 @@
 //! the file's extension (case-insensitive).
 
 mod bytes;
+mod finite;
 mod las;
 mod pcd;
 mod ply;
@@ -17,6 +18,7 @@ use std::path::Path;
 use nalgebra::Point3;
 
 pub use crate::base::error::IoError;
+use finite::refuse_non_finite;
 
 /// File formats known by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,7 +65,7 @@ impl Format {
 pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<Vec<Point3<f64>>, IoError> {
     let path = path.as_ref();
     let points = read_any(path, false)?;
-    refuse_non_finite(&points, path)?;
+    refuse_non_finite(path, &points, None)?;
     Ok(points)
 }
 
@@ -140,23 +142,8 @@ pub fn parse_point_cloud(
 ) -> Result<Vec<Point3<f64>>, IoError> {
     let stream = std::io::Cursor::new(bytes.to_vec());
     let points = parse(format, name, stream, bytes.len() as u64, false)?;
-    refuse_non_finite(&points, name)?;
+    refuse_non_finite(name, &points, None)?;
     Ok(points)
-}
-
-/// The first point with a NaN or infinite coordinate, as an error naming `path`.
-fn refuse_non_finite(points: &[Point3<f64>], path: &Path) -> Result<(), IoError> {
-    match points
-        .iter()
-        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
-    {
-        Some(index) => Err(IoError::NonFinite {
-            path: path.to_path_buf(),
-            line: None,
-            index,
-        }),
-        None => Ok(()),
-    }
 }
 
 /// Reads every point of a cloud file; refuses an empty one. Text files refuse a non-finite

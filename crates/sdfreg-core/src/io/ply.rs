@@ -22,6 +22,7 @@ use ply_rs_bw::ply::{
 };
 
 use crate::base::error::IoError;
+use crate::io::finite::refuse_non_finite;
 
 fn number(p: &Property) -> Option<f64> {
     Some(match *p {
@@ -161,26 +162,6 @@ pub(super) fn read(
         refuse_non_finite(path, &points, first_line)?;
     }
     Ok(points)
-}
-
-/// The first of `points` with a NaN or infinite coordinate as an error naming `path` and, when
-/// the `vertex` rows are lines from `first_line` on (ascii), its line.
-fn refuse_non_finite(
-    path: &Path,
-    points: &[Point3<f64>],
-    first_line: Option<u64>,
-) -> Result<(), IoError> {
-    match points
-        .iter()
-        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
-    {
-        Some(index) => Err(IoError::NonFinite {
-            path: path.into(),
-            line: first_line.map(|l| l as usize + index),
-            index,
-        }),
-        None => Ok(()),
-    }
 }
 
 /// `line` of an ascii body with each number that ply-rs's grammar
@@ -697,23 +678,28 @@ mod tests {
             + "1 -inf 2 0 1 0\n"
             + "0.25 0.5 -0.75 -nan NaN Infinity\n";
         let path = Path::new("o3d.ply");
-        let err = read(path, text.as_bytes(), false).unwrap_err();
-        // 11 header lines: the second vertex row is line 13.
-        assert!(
-            matches!(
-                err,
-                IoError::NonFinite {
-                    line: Some(13),
-                    index: 1,
-                    ..
-                }
-            ),
-            "{err:?}"
-        );
-        assert_eq!(
-            err.to_string(),
-            "o3d.ply:13: point 1 has a non-finite coordinate"
-        );
+        // 11 header lines: the second vertex row is line 13. A cloud's point and a mesh's
+        // vertex are refused alike, by that line.
+        for err in [
+            read(path, text.as_bytes(), false).unwrap_err(),
+            read_mesh(path, text.as_bytes()).unwrap_err(),
+        ] {
+            assert!(
+                matches!(
+                    err,
+                    IoError::NonFinite {
+                        line: Some(13),
+                        index: 1,
+                        ..
+                    }
+                ),
+                "{err:?}"
+            );
+            assert_eq!(
+                err.to_string(),
+                "o3d.ply:13: point 1 has a non-finite coordinate"
+            );
+        }
         let points = read(path, text.as_bytes(), true).unwrap();
         assert_eq!(points.len(), 4);
         assert_eq!(points[0], Point3::new(0.511822, 0.950464, 0.14416));
@@ -724,19 +710,6 @@ mod tests {
         );
         // Undefined normals beside finite coordinates: the point is read as written.
         assert_eq!(points[3], Point3::new(0.25, 0.5, -0.75));
-        // A mesh's vertex likewise, by its line.
-        let err = read_mesh(path, text.as_bytes()).unwrap_err();
-        assert!(
-            matches!(
-                err,
-                IoError::NonFinite {
-                    line: Some(13),
-                    index: 1,
-                    ..
-                }
-            ),
-            "{err:?}"
-        );
     }
 
     #[test]
