@@ -290,7 +290,7 @@ pub struct InputArgs {
 
 #[derive(Args, Debug)]
 pub struct FitArgs {
-    /// Cloud to model (.ply, .pcd, .las, .xyz, .txt, .csv).
+    /// Cloud to model (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
     pub target: PathBuf,
     /// The model file to write (.sdfm).
     #[arg(long, short)]
@@ -323,7 +323,7 @@ pub struct MeshArgs {
 pub struct TrackArgs {
     /// The model (.sdfm, from `sdfreg fit`).
     pub model: PathBuf,
-    /// The frames, in order (.ply, .pcd, .las, .xyz, .txt, .csv).
+    /// The frames, in order (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
     #[arg(required = true)]
     pub frames: Vec<PathBuf>,
     /// Where to write one JSON line per frame (`file`, `transformation` mapping the frame into
@@ -345,9 +345,9 @@ pub struct TrackArgs {
 
 #[derive(Args, Debug)]
 pub struct RegisterArgs {
-    /// Cloud to move (.ply, .pcd, .las, .xyz, .txt, .csv).
+    /// Cloud to move (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
     pub source: PathBuf,
-    /// Fixed cloud (.ply, .pcd, .las, .xyz, .txt, .csv), or a model written by `sdfreg fit` (.sdfm),
+    /// Fixed cloud (.ply, .pcd, .las, .laz, .xyz, .txt, .csv), or a model written by `sdfreg fit` (.sdfm),
     /// registered against without fitting (Φ frozen; see --refine).
     pub target: PathBuf,
     /// With a model as TARGET: refine a private copy of its SDF with the moved source among its
@@ -361,7 +361,7 @@ pub struct RegisterArgs {
     /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
     #[arg(long, short)]
     pub output: Option<PathBuf>,
-    /// Write the moved source cloud here (.ply, .pcd, .las or text).
+    /// Write the moved source cloud here (.ply, .pcd, .las, .laz or text).
     #[arg(long)]
     pub aligned: Option<PathBuf>,
     /// Initial guess: a text file with a 4×4 matrix (source into target); skips the multi-start.
@@ -401,7 +401,7 @@ pub struct BatchArgs {
 
 #[derive(Args, Debug)]
 pub struct AlignArgs {
-    /// The scans (.ply, .pcd, .las, .xyz, .txt, .csv), each in its own frame; at least two.
+    /// The scans (.ply, .pcd, .las, .laz, .xyz, .txt, .csv), each in its own frame; at least two.
     #[arg(required = true)]
     pub scans: Vec<PathBuf>,
     /// Where to write the poses (JSON): per scan `file`, `transformation` (4×4, the scan's
@@ -524,7 +524,7 @@ pub struct EvalArgs {
 
 #[derive(Args, Debug)]
 pub struct FitnessArgs {
-    /// The cloud to move (.ply, .pcd, .las, .xyz, .txt, .csv).
+    /// The cloud to move (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
     pub source: PathBuf,
     /// What it is measured against, fixed: a cloud, a model (.sdfm: the target points it was
     /// fitted to), or with --exact-mesh a mesh.

@@ -249,6 +249,9 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
     let src = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
     sdfreg_core::io::write_point_cloud(dir.path().join("full.las"), &src).unwrap();
     let las = std::fs::read(dir.path().join("full.las")).unwrap();
+    // The same compressed (LAZ), cut in half: its chunk table lies past the end.
+    sdfreg_core::io::write_point_cloud(dir.path().join("full.laz"), &src).unwrap();
+    let laz = std::fs::read(dir.path().join("full.laz")).unwrap();
     let las_points: &'static str = format!(
         "the file ends inside points 0..{0} of the {0} the header declares",
         src.len()
@@ -277,7 +280,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         ("NaN in ascii PLY", "nan.ply", Some(ply_ascii(50, &rows_with(10, "1 nan 2"))), vec!["nan.ply:18", "point 10", "non-finite"]),
         ("truncated LAS", "cut.las", Some(las[..las.len() - 100].to_vec()), vec!["cut.las", las_points]),
         ("not a LAS", "text.las", Some(b"hello\n".to_vec()), vec!["text.las", "not a LAS file", "\"hell\""]),
-        ("LAZ", "scan.laz", Some(las.clone()), vec!["scan.laz", "LAZ (compressed LAS) is not read", "pdal translate"]),
+        ("truncated LAZ", "cut.laz", Some(laz[..laz.len() / 2].to_vec()), vec!["cut.laz", "LASzip chunk table is said to begin at byte"]),
         ("PTS cut short", "cut.pts", Some(format!("60\n{rows}").into_bytes()), vec!["cut.pts:1", "point count 60, but 50 rows follow"]),
         ("fewer than 10 points", "few.xyz", Some(rows.lines().take(5).map(|l| format!("{l}\n")).collect::<String>().into_bytes()), vec!["few.xyz", "5 points; at least 10"]),
         ("one repeated point", "same.xyz", Some("1 2 3\n".repeat(50).into_bytes()), vec!["same.xyz", "no extent"]),
@@ -325,9 +328,11 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
 fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
     let dir = tempfile::tempdir().unwrap();
     let truth = pair(dir.path());
-    // The source as PCD, and a copy with two NaN rows (as a range scanner writes them).
+    // The source as PCD and as LAZ, and a copy with two NaN rows (as a range scanner writes
+    // them).
     let src = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
     sdfreg_core::io::write_point_cloud(dir.path().join("src.pcd"), &src).unwrap();
+    sdfreg_core::io::write_point_cloud(dir.path().join("src.laz"), &src).unwrap();
     let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
     text.insert_str(0, "nan nan nan\n");
     text.push_str("1 NaN 2\n");
@@ -357,6 +362,7 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         ("holes.xyz", Some("--drop-non-finite")),
         ("holes.ply", Some("--drop-non-finite")),
         ("src.pcd", None),
+        ("src.laz", None),
     ] {
         let out = sdfreg()
             .arg("register")

@@ -34,8 +34,8 @@
 //!   worker, results in input order and equal to registering each alone.
 //! - [`register_each`]: the same over any iterator of keyed pairs, pulled lazily, each result
 //!   handed back as it finishes; [`batch::log`]: the results file of `sdfreg batch`, and its reader.
-//! - [`io`]: reading and writing clouds and meshes (PLY, PCD, XYZ/TXT/CSV), errors naming file
-//!   and place ([`IoError`]).
+//! - [`io`]: reading and writing clouds and meshes (PLY, PCD, LAS/LAZ, XYZ/TXT/CSV/PTS), errors
+//!   naming file and place ([`IoError`]).
 //!
 //! ## The layers, bottom-up
 //! Each folder of the source is a layer; a module imports only from its own layer or from lower

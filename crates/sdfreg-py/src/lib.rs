@@ -217,8 +217,8 @@ fn _settings_keywords() -> std::collections::BTreeMap<&'static str, Vec<&'static
 ///
 /// Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
 /// element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
-/// ``.las`` (any version and point format; x, y, z with the file's scale and offset; ``.laz``
-/// is refused: decompress it first), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
+/// ``.las`` and ``.laz`` (any version and point format, LASzip-compressed or not; x, y, z
+/// with the file's scale and offset), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
 /// columns; a ``.pts`` block's point-count line is checked against its rows).
 ///
 /// Args:
@@ -261,7 +261,7 @@ fn read_point_cloud(
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
 /// Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
 /// float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
-/// scale of 10⁻⁹–10⁻⁸ of the cloud's extent; text formats: one ``x y z`` line per point, full
+/// scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; text formats: one ``x y z`` line per point, full
 /// precision, after a point-count line in ``.pts``). An existing file is replaced.
 ///
 /// Raises:

@@ -2,13 +2,15 @@
 //! `x`, `y`, `z` with the file's scale and offset applied, in its units (metres for nearly every
 //! survey). Other point fields are skipped.
 //!
-//! LAZ (LASzip-compressed LAS) is refused with what to do: the decoder las-rs uses for it panics
-//! or aborts the process on some corrupted files (found by feeding it damaged copies), and a
-//! damaged input must give an error, not a crash.
+//! LAZ (LASzip-compressed LAS) is read through las-rs's LASzip decoder (the `laz` crate), after
+//! what that decoder sizes buffers by or indexes with is checked against the file: its chunk
+//! table, and each layered chunk's layer sizes. Without those checks damaged copies of a LAZ file
+//! made the decoder panic or abort the process.
 //!
 //! Written files are LAS 1.2, point format 0, with an offset at the cloud's middle and the
 //! finest power-of-ten scale whose integers fit LAS's 32 bits with room: between 10⁻⁹ and 10⁻⁸
-//! of the cloud's extent (an 80 m scan to 0.1 µm, a 15 cm object to 1 nm).
+//! of the cloud's extent (an 80 m scan to 0.1 µm, a 15 cm object to 1 nm); LASzip-compressed
+//! when the path ends in `.laz`.
 
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -17,11 +19,6 @@ use las::{Builder, Point, Transform, Vector};
 use nalgebra::Point3;
 
 use crate::base::error::IoError;
-
-/// Why a LAZ file (or a LAS file whose points are compressed) is not read, and what to do.
-pub(super) const LAZ_REFUSED: &str =
-    "LAZ (compressed LAS) is not read: decompress it to .las first \
-     (`pdal translate in.laz out.las`, or `laszip -i in.laz -o out.las`)";
 
 /// Bytes of points read at a time: a header's point count is not trusted to size an allocation.
 const CHUNK_BYTES: u64 = 4 << 20;
@@ -37,7 +34,6 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
             "not a LAS file: it begins with {:?}, where LAS files begin with \"LASF\"",
             String::from_utf8_lossy(&first)
         ),
-        las::Error::LaszipNotEnabled => LAZ_REFUSED.into(),
         e => format!("{what}: {e}"),
     };
     IoError::Parse {
@@ -47,10 +43,20 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
     }
 }
 
-/// Refuses a LAS 1.4 file whose extended record (EVLR) declares more bytes than the file has:
-/// las-rs sizes that record's buffer by the declared length before reading it, so a damaged
-/// length would exhaust the memory. Leaves `stream` at its start.
-fn refuse_oversized_evlr(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError> {
+/// A damaged file's error: `message` about `path`.
+fn damaged(path: &Path, message: String) -> IoError {
+    IoError::Parse {
+        path: path.into(),
+        line: None,
+        message,
+    }
+}
+
+/// Checks what las-rs and its LASzip decoder would size a buffer by, or index with, against the
+/// file before they read it: a LAS 1.4 extended record (EVLR) declaring more bytes than the file
+/// has (las-rs sizes its buffer by that length) and, in a LAZ file, the chunk table and the
+/// layered chunks' sizes ([`check_laz`]). Leaves `stream` at its start.
+fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError> {
     let io = |e: std::io::Error| las_error(path, "the LAS header", las::Error::Io(e));
     let len = stream.seek(SeekFrom::End(0)).map_err(io)?;
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
@@ -65,18 +71,199 @@ fn refuse_oversized_evlr(path: &Path, stream: &mut (impl Read + Seek)) -> Result
             stream.read_exact(&mut length).map_err(io)?;
             let declared = u64::from_le_bytes(length);
             if declared > len {
-                return Err(IoError::Parse {
-                    path: path.into(),
-                    line: None,
-                    message: format!(
+                return Err(damaged(
+                    path,
+                    format!(
                         "the extended record at byte {} declares {declared} bytes; the file has {len}",
                         evlr.start_of_first_evlr
                     ),
-                });
+                ));
             }
         }
     }
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
+    let header =
+        las::Header::new(&mut *stream).map_err(|e| las_error(path, "the LAS header", e))?;
+    if header.point_format().is_compressed {
+        check_laz(
+            path,
+            stream,
+            &header,
+            u64::from(raw.offset_to_point_data),
+            len,
+        )?;
+    }
+    stream.seek(SeekFrom::Start(0)).map_err(io)?;
+    Ok(())
+}
+
+/// The LASzip compressor kinds (the first two bytes of its record): one stream of points, or
+/// chunks of them, each chunk either one stream or layered (a stream per field, LAS 1.4's point
+/// formats 6 to 10).
+const POINTWISE: u16 = 1;
+const LAYERED: u16 = 3;
+
+/// Checks a LAZ file against what its LASzip record and chunk table declare, before the decoder
+/// trusts them: the record describes the header's point size; the chunk table lies inside the
+/// file, its entries could fit there, their bytes do and their points cover the header's count
+/// (the decoder indexes the table by chunk); each layered chunk's layers fit in the bytes left
+/// (the decoder sizes a buffer by each). `data` is the offset of the point data, `len` the file's
+/// length.
+fn check_laz(
+    path: &Path,
+    stream: &mut (impl Read + Seek),
+    header: &las::Header,
+    data: u64,
+    len: u64,
+) -> Result<(), IoError> {
+    let io = |e: std::io::Error| las_error(path, "the LASzip chunks", las::Error::Io(e));
+    let vlr = header
+        .laz_vlr()
+        .map_err(|e| las_error(path, "the LASzip record", e))?;
+    let record = u64::from(header.point_format().len());
+    if vlr.items_size() != record {
+        return Err(damaged(
+            path,
+            format!(
+                "the LASzip record describes points of {} bytes, the header's point format {record}",
+                vlr.items_size()
+            ),
+        ));
+    }
+    let kind = header
+        .vlrs()
+        .iter()
+        .find(|v| las::laz::is_laszip_vlr(v))
+        .and_then(|v| v.data.get(..2))
+        .map_or(0, |b| u16::from_le_bytes([b[0], b[1]]));
+    if kind == POINTWISE {
+        return Ok(());
+    }
+    let points = header.number_of_points();
+    // The chunk table's offset: first in the point data, or (when the writer could not go back)
+    // in the file's last 8 bytes, as the decoder looks for it.
+    let mut offset = [0u8; 8];
+    stream.seek(SeekFrom::Start(data)).map_err(io)?;
+    stream.read_exact(&mut offset).map_err(io)?;
+    let mut table_at = i64::from_le_bytes(offset);
+    if table_at <= data as i64 && len >= 8 {
+        stream.seek(SeekFrom::Start(len - 8)).map_err(io)?;
+        stream.read_exact(&mut offset).map_err(io)?;
+        table_at = i64::from_le_bytes(offset);
+    }
+    let variable = vlr.uses_variable_size_chunks();
+    let table = if table_at > data as i64 {
+        let at = table_at as u64;
+        let mut head = [0u8; 8];
+        if at.saturating_add(8) > len {
+            return Err(damaged(
+                path,
+                format!("the LASzip chunk table is said to begin at byte {at}; the file has {len}"),
+            ));
+        }
+        stream.seek(SeekFrom::Start(at)).map_err(io)?;
+        stream.read_exact(&mut head).map_err(io)?;
+        // The table's own entries take some bytes each, and so does a chunk: no more than a
+        // quarter as many chunks as the file has bytes.
+        let count = u64::from(u32::from_le_bytes([head[4], head[5], head[6], head[7]]));
+        if count > len / 4 {
+            return Err(damaged(
+                path,
+                format!("the LASzip chunk table declares {count} chunks in a file of {len} bytes"),
+            ));
+        }
+        stream.seek(SeekFrom::Start(at)).map_err(io)?;
+        let table = laz::laszip::ChunkTable::read(&mut *stream, variable)
+            .map_err(|e| las_error(path, "the LASzip chunk table", las::Error::Io(e)))?;
+        let bytes = table
+            .as_ref()
+            .iter()
+            .fold(0u64, |s, e| s.saturating_add(e.byte_count));
+        if bytes > at - data {
+            return Err(damaged(
+                path,
+                format!(
+                    "the LASzip chunk table declares {bytes} bytes of chunks; {} lie before it",
+                    at - data
+                ),
+            ));
+        }
+        if variable {
+            let covered = table
+                .as_ref()
+                .iter()
+                .fold(0u64, |s, e| s.saturating_add(e.point_count));
+            if covered < points {
+                return Err(damaged(
+                    path,
+                    format!(
+                        "the LASzip chunk table holds {covered} points; the header declares {points}"
+                    ),
+                ));
+            }
+        }
+        Some(table)
+    } else if variable {
+        return Err(damaged(
+            path,
+            "the LASzip chunks vary in size, and the file has no chunk table".into(),
+        ));
+    } else {
+        None
+    };
+    if kind != LAYERED {
+        return Ok(());
+    }
+    // A layered chunk: its first point as is, its point count, each layer's size (u32), then
+    // the layers. Walked as the decoder reads them, a chunk after the other.
+    let layers: u64 = vlr
+        .items()
+        .iter()
+        .map(|item| match item.item_type() {
+            laz::LazItemType::Point14 => 9,
+            laz::LazItemType::RGBNIR14 => 2,
+            laz::LazItemType::Byte14(n) => u64::from(n),
+            _ => 1,
+        })
+        .sum();
+    let mut at = data + 8;
+    let mut seen = 0u64;
+    let mut chunk = 0usize;
+    while seen < points {
+        let in_chunk = match &table {
+            Some(t) if variable => t.as_ref().get(chunk).map_or(0, |e| e.point_count),
+            _ => u64::from(vlr.chunk_size()),
+        };
+        let head = record + 4 + 4 * layers;
+        if at.saturating_add(head) > len {
+            return Err(damaged(
+                path,
+                format!("the file ends inside LASzip chunk {chunk}, at byte {at}"),
+            ));
+        }
+        stream.seek(SeekFrom::Start(at + record + 4)).map_err(io)?;
+        let mut sizes = vec![0u8; 4 * layers as usize];
+        stream.read_exact(&mut sizes).map_err(io)?;
+        let body: u64 = sizes
+            .chunks_exact(4)
+            .map(|b| u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
+            .sum();
+        if body > len - at - head {
+            return Err(damaged(
+                path,
+                format!(
+                    "LASzip chunk {chunk} at byte {at} declares {body} bytes of layers; {} follow",
+                    len - at - head
+                ),
+            ));
+        }
+        if in_chunk == 0 {
+            break;
+        }
+        at += head + body;
+        seen = seen.saturating_add(in_chunk);
+        chunk += 1;
+    }
     Ok(())
 }
 
@@ -86,7 +273,7 @@ pub(super) fn read(
     path: &Path,
     mut stream: impl Read + Seek + Send + Sync + 'static,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    refuse_oversized_evlr(path, &mut stream)?;
+    preflight(path, &mut stream)?;
     let mut reader = las::Reader::new(stream).map_err(|e| las_error(path, "the LAS header", e))?;
     let declared = reader.header().number_of_points();
     let chunk_points =
@@ -131,7 +318,8 @@ fn transform(lo: f64, hi: f64, extent: f64) -> Transform {
     Transform { scale, offset }
 }
 
-/// `points` as a LAS file's bytes; `path` names it in errors.
+/// `points` as a LAS file's bytes, LASzip-compressed when `path` ends in `.laz`; `path` names it
+/// in errors.
 pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoError> {
     let mut lo = Point3::from([f64::INFINITY; 3]);
     let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
@@ -141,6 +329,9 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
     }
     let extent = (hi - lo).max();
     let mut builder = Builder::from((1, 2));
+    builder.point_format.is_compressed = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
     builder.generating_software = format!("sdfreg {}", env!("CARGO_PKG_VERSION"));
     if !points.is_empty() {
         builder.transforms = Vector {
@@ -168,6 +359,67 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A LAZ file of `n` points in LAS point format `format` (LAS 1.4 from format 6 on: layered
+    /// chunks), as las-rs writes it: chunks of 50,000 points.
+    pub(super) fn laz(format: u8, n: usize) -> Vec<u8> {
+        let mut builder = Builder::from((1, if format >= 6 { 4 } else { 2 }));
+        builder.point_format = las::point::Format::new(format).unwrap();
+        builder.point_format.is_compressed = true;
+        let header = builder.into_header().unwrap();
+        let mut writer = las::Writer::new(Cursor::new(Vec::new()), header).unwrap();
+        for i in 0..n {
+            let t = i as f64;
+            let mut p = Point {
+                x: (t * 0.01).sin(),
+                y: 0.001 * t,
+                z: (t * 0.37).cos(),
+                ..Default::default()
+            };
+            if format == 7 || format == 3 {
+                p.color = Some(las::Color::new(i as u16, 3, 4));
+            }
+            if format >= 6 || format == 1 || format == 3 {
+                p.gps_time = Some(t);
+            }
+            writer.write_point(p).unwrap();
+        }
+        writer.into_inner().unwrap().into_inner()
+    }
+
+    /// `laz` (of `n` points) with chunks of variable size, as COPC files and some writers have:
+    /// the same chunks, the LASzip record's chunk size 0 (variable), each entry of the chunk
+    /// table carrying its point count.
+    pub(super) fn variable_chunks(laz: &[u8], n: u64) -> Vec<u8> {
+        let id = laz
+            .windows(14)
+            .position(|w| w == b"laszip encoded")
+            .unwrap();
+        // A VLR: reserved (2), user id (16), record id (2), length (2), description (32).
+        let record = id - 2 + 54;
+        let fixed = u32::from_le_bytes(laz[record + 12..record + 16].try_into().unwrap());
+        let mut out = laz.to_vec();
+        out[record + 12..record + 16].copy_from_slice(&0u32.to_le_bytes());
+        let vlr = laz::LazVlr::from_buffer(&out[record..]).unwrap();
+        assert!(vlr.uses_variable_size_chunks());
+        let data = u32::from_le_bytes(laz[96..100].try_into().unwrap()) as usize;
+        let at = i64::from_le_bytes(laz[data..data + 8].try_into().unwrap()) as usize;
+        let fixed_table =
+            laz::laszip::ChunkTable::read(&mut Cursor::new(&laz[at..]), false).unwrap();
+        let mut table = laz::laszip::ChunkTable::with_capacity(fixed_table.len());
+        let mut left = n;
+        for entry in &fixed_table {
+            let point_count = left.min(u64::from(fixed));
+            left -= point_count;
+            table.push(laz::laszip::ChunkTableEntry {
+                point_count,
+                byte_count: entry.byte_count,
+            });
+        }
+        out.truncate(at);
+        table.write_to(&mut out, &vlr).unwrap();
+        out
+    }
 
     fn cloud() -> Vec<Point3<f64>> {
         // A survey's coordinates: large offsets (UTM), centimetres to metres apart.
@@ -263,5 +515,108 @@ mod tests {
         assert!((t.scale - 1e-9).abs() < 1e-21, "{}", t.scale);
         assert!((t.offset - 0.005).abs() < 1e-12);
         assert!((transform(0.0, 84.0, 84.0).scale - 1e-7).abs() < 1e-19);
+    }
+
+    /// The expected coordinates of `laz(_, n)`'s points, at its scale (0.001).
+    fn laz_expected(n: usize) -> Vec<Point3<f64>> {
+        (0..n)
+            .map(|i| {
+                let t = i as f64;
+                Point3::new((t * 0.01).sin(), 0.001 * t, (t * 0.37).cos())
+            })
+            .collect()
+    }
+
+    #[test]
+    fn laz_reads_its_chunks_pointwise_and_layered_fixed_and_variable() {
+        // Point format 0 is compressed point by point, format 6 (LAS 1.4) in layers; 120,000
+        // points make three chunks of 50,000 or fewer.
+        let n = 120_000;
+        let expected = laz_expected(n);
+        for format in [0, 6] {
+            let fixed = laz(format, n);
+            for bytes in [variable_chunks(&fixed, n as u64), fixed] {
+                let read = read(Path::new("a.laz"), Cursor::new(bytes)).unwrap();
+                assert_eq!(read.len(), n);
+                let worst = read
+                    .iter()
+                    .zip(&expected)
+                    .map(|(a, b)| (a - b).amax())
+                    .fold(0.0, f64::max);
+                assert!(worst <= 0.0005 + 1e-9, "format {format}: {worst}");
+            }
+        }
+        // Written by the crate: compressed when the name says so, to the same scale as LAS.
+        let points = cloud();
+        let bytes = encode(Path::new("a.laz"), &points).unwrap();
+        let plain = encode(Path::new("a.las"), &points).unwrap();
+        assert!(
+            bytes.len() < plain.len() / 2,
+            "{} {}",
+            bytes.len(),
+            plain.len()
+        );
+        let read = read(Path::new("a.laz"), Cursor::new(bytes)).unwrap();
+        assert_eq!(
+            read,
+            super::read(Path::new("a.las"), Cursor::new(plain)).unwrap()
+        );
+    }
+
+    /// `laz`'s point-data offset and where its chunk table begins.
+    fn laz_offsets(laz: &[u8]) -> (usize, usize) {
+        let data = u32::from_le_bytes(laz[96..100].try_into().unwrap()) as usize;
+        let table = i64::from_le_bytes(laz[data..data + 8].try_into().unwrap()) as usize;
+        (data, table)
+    }
+
+    #[test]
+    fn a_laz_file_is_checked_against_what_its_chunks_declare_before_it_is_decoded() {
+        // Each damage below made the decoder abort the process (a buffer sized by the count)
+        // or index past its chunk table, before these checks.
+        let n = 120_000;
+        let refused = |name: &str, bytes: Vec<u8>, says: &str| {
+            let err = read(Path::new(name), Cursor::new(bytes))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.starts_with(&format!("{name}: ")) && err.contains(says),
+                "{err}"
+            );
+        };
+        let good = laz(0, n);
+        let (_, table) = laz_offsets(&good);
+        // The table's chunk count (after its 4-byte version).
+        let mut many = good.clone();
+        many[table + 4..table + 8].copy_from_slice(&u32::MAX.to_le_bytes());
+        refused(
+            "many.laz",
+            many,
+            &format!("chunk table declares {} chunks in a file of", u32::MAX),
+        );
+        // Cut short: the table's offset now lies past the end.
+        refused(
+            "cut.laz",
+            good[..good.len() / 2].to_vec(),
+            &format!("chunk table is said to begin at byte {table}"),
+        );
+        // A variable-size table that holds fewer points than the header declares.
+        let short = variable_chunks(&good, n as u64 - 20_000);
+        refused(
+            "short.laz",
+            short,
+            &format!("chunk table holds 100000 points; the header declares {n}"),
+        );
+        // A layered chunk whose first layer declares 4 GB: the decoder sizes a buffer by it.
+        let mut layered = laz(6, n);
+        let (data6, _) = laz_offsets(&layered);
+        // Chunk 0: the chunk table's offset (8), the first point as is (30), its count (4).
+        let at = data6 + 8 + 30 + 4;
+        layered[at..at + 4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes());
+        refused(
+            "layers.laz",
+            layered,
+            &format!("LASzip chunk 0 at byte {} declares", data6 + 8),
+        );
     }
 }

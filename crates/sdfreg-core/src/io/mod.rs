@@ -1,5 +1,6 @@
 //! Reading and writing point clouds: PLY (ascii and binary, via ply-rs), PCD (ascii, binary and
-//! binary_compressed, via pcd-rs), LAS (via las-rs) and XYZ/TXT/CSV text.
+//! binary_compressed, via pcd-rs), LAS and LAZ (via las-rs and its LASzip decoder) and
+//! XYZ/TXT/CSV/PTS text.
 //!
 //! Entry points: [`read_point_cloud`] and [`write_point_cloud`], which choose the format from
 //! the file's extension (case-insensitive).
@@ -27,8 +28,8 @@ pub enum Format {
     Ply,
     /// Point Cloud Library PCD: the `x`, `y`, `z` fields (any type).
     Pcd,
-    /// ASPRS LAS (`.las`): each point's scaled `x`, `y`, `z`. LAZ (`.laz`) is refused with what
-    /// to do (its decoder can crash on a damaged file).
+    /// ASPRS LAS (`.las`) and LASzip-compressed LAS (`.laz`): each point's scaled `x`, `y`,
+    /// `z`. Written compressed when the path ends in `.laz`.
     Las,
     /// Text, one point per line, first three columns separated by spaces, tabs or commas.
     Xyz,
@@ -45,12 +46,7 @@ impl Format {
         match ext.as_str() {
             "ply" => Ok(Format::Ply),
             "pcd" => Ok(Format::Pcd),
-            "las" => Ok(Format::Las),
-            "laz" => Err(IoError::Parse {
-                path: path.to_path_buf(),
-                line: None,
-                message: las::LAZ_REFUSED.into(),
-            }),
+            "las" | "laz" => Ok(Format::Las),
             "xyz" | "txt" | "csv" | "pts" => Ok(Format::Xyz),
             _ => Err(IoError::UnknownFormat {
                 path: path.to_path_buf(),
@@ -207,7 +203,7 @@ fn parse(
 
 /// Writes points to `path` (PLY and PCD: binary little-endian doubles; text: `x y z` lines with
 /// full precision, after a point-count line in `.pts`; LAS: 32-bit integers at a scale of
-/// 10⁻⁹–10⁻⁸ of the cloud's extent).
+/// 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in `.laz`).
 /// Overwrites an existing file: callers decide whether that is wanted.
 pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Result<(), IoError> {
     let path = path.as_ref();

@@ -1164,8 +1164,8 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
 
     Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
     element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
-    ``.las`` (any version and point format; x, y, z with the file's scale and offset; ``.laz``
-    is refused: decompress it first), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
+    ``.las`` and ``.laz`` (any version and point format, LASzip-compressed or not; x, y, z
+    with the file's scale and offset), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
     columns; a ``.pts`` block's point-count line is checked against its rows).
 
     Args:
@@ -1183,7 +1183,7 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
 def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
     """Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
     float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
-    scale of 10⁻⁹–10⁻⁸ of the cloud's extent; text formats: one ``x y z`` line per point, full
+    scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; text formats: one ``x y z`` line per point, full
     precision, after a point-count line in ``.pts``). An existing file is replaced.
 
     Raises:
