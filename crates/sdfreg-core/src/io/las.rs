@@ -36,11 +36,7 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
         ),
         e => format!("{what}: {e}"),
     };
-    IoError::Parse {
-        path: path.into(),
-        line: None,
-        message,
-    }
+    damaged(path, message)
 }
 
 /// A damaged file's error: `message` about `path`.
@@ -97,10 +93,11 @@ fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError
     Ok(())
 }
 
-/// The LASzip compressor kinds (the first two bytes of its record): one stream of points, or
-/// chunks of them, each chunk either one stream or layered (a stream per field, LAS 1.4's point
-/// formats 6 to 10).
+/// LASzip's compressor kind (the first two bytes of its record) for one stream of points, not
+/// chunked: no chunk table.
 const POINTWISE: u16 = 1;
+/// LASzip's compressor kind for layered chunks (a stream per field; LAS 1.4's point formats 6 to
+/// 10). Kind 2, chunks of one stream each, lies between.
 const LAYERED: u16 = 3;
 
 /// Checks a LAZ file against what its LASzip record and chunk table declare, before the decoder
@@ -290,13 +287,10 @@ pub(super) fn read(
             )
         })?;
         if chunk.is_empty() {
-            return Err(IoError::Parse {
-                path: path.into(),
-                line: None,
-                message: format!(
-                    "the file ends after {from} of the {declared} points the header declares"
-                ),
-            });
+            return Err(damaged(
+                path,
+                format!("the file ends after {from} of the {declared} points the header declares"),
+            ));
         }
         points.extend(
             chunk
