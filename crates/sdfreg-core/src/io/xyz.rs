@@ -155,17 +155,21 @@ mod tests {
             ]
         );
         // A block cut short, or longer than its count, names its count line.
-        let cut = "3\n1 2 3\n4 5 6\n";
-        let err = read_strict(Path::new("cut.pts"), cut.as_bytes()).unwrap_err();
-        assert_eq!(
-            err.to_string(),
-            "cut.pts:1: point count 3, but 2 rows follow it"
-        );
-        let err = read_strict(Path::new("two.pts"), b"1\n1 2 3\n1\n4 5 6\n7 8 9\n").unwrap_err();
-        assert_eq!(
-            err.to_string(),
-            "two.pts:3: point count 1, but 2 rows follow it"
-        );
+        for (name, text, says) in [
+            (
+                "cut.pts",
+                "3\n1 2 3\n4 5 6\n",
+                "cut.pts:1: point count 3, but 2 rows follow it",
+            ),
+            (
+                "two.pts",
+                "1\n1 2 3\n1\n4 5 6\n7 8 9\n",
+                "two.pts:3: point count 1, but 2 rows follow it",
+            ),
+        ] {
+            let err = read_strict(Path::new(name), text.as_bytes()).unwrap_err();
+            assert_eq!(err.to_string(), says);
+        }
         // Written with its count line, read back to the bit.
         let written = encode(&pts, true);
         assert!(written.starts_with(b"3\n"));
