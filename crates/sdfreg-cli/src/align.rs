@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use nalgebra::Isometry3;
-use sdfreg_core::io::write_mesh;
+use nalgebra::{Isometry3, Point3};
+use sdfreg_core::geometry::cloud::LeftOut;
+use sdfreg_core::io::{read_e57_scans, write_mesh, Format};
 use sdfreg_core::views::poses_file;
 use sdfreg_core::AlignSettings;
 
@@ -58,16 +59,20 @@ pub fn run(a: AlignArgs) -> Result<()> {
     let mut unreadable: Vec<(usize, String)> = Vec::new();
     let mut index = Vec::new();
     let mut scans = Vec::new();
-    for (k, path) in a.scans.iter().enumerate() {
-        match crate::read_cloud(path, &a.input, a.common.seed) {
-            Ok(points) => {
-                index.push(k);
-                scans.push(points);
+    let mut views = Vec::new();
+    for path in &a.scans {
+        for (view, points) in read_views(path, &a.input, a.common.seed) {
+            match points {
+                Ok(points) => {
+                    index.push(views.len());
+                    scans.push(points);
+                }
+                Err(e) => {
+                    eprintln!("sdfreg: {}: left out: {e:#}", view.label);
+                    unreadable.push((views.len(), format!("{e:#}")));
+                }
             }
-            Err(e) => {
-                eprintln!("sdfreg: {}: left out: {e:#}", path.display());
-                unreadable.push((k, format!("{e:#}")));
-            }
+            views.push(view);
         }
     }
     if !index.contains(&a.anchor) {
@@ -75,25 +80,33 @@ pub fn run(a: AlignArgs) -> Result<()> {
             "--anchor {}: scan {} ({}) is not among the readable scans",
             a.anchor,
             a.anchor,
-            a.scans
-                .get(a.anchor)
-                .map_or("none".into(), |p| p.display().to_string())
+            views.get(a.anchor).map_or("none", |v| v.label.as_str())
         );
     }
     settings.anchor = index.iter().position(|&k| k == a.anchor).expect("checked");
     let init = a
         .init
         .as_deref()
-        .map(|path| read_poses(path, a.scans.len()))
+        .map(|path| read_poses(path, views.len()))
         .transpose()?
         .map(|poses| index.iter().map(|&k| poses[k]).collect::<Vec<_>>());
     let alignment = sdfreg_core::align(&scans, init.as_deref(), &settings)
-        .map_err(|e| anyhow::anyhow!("{e}").context(format!("{} scans", a.scans.len())))?;
+        .map_err(|e| anyhow::anyhow!("{e}").context(format!("{} scans", views.len())))?;
     for (k, why) in &alignment.left_out {
-        eprintln!("sdfreg: {}: left out: {why}", a.scans[index[*k]].display());
+        eprintln!("sdfreg: {}: left out: {why}", views[index[*k]].label);
     }
-    let files: Vec<String> = a.scans.iter().map(|p| p.display().to_string()).collect();
-    let mut json = poses_file::poses_json(&alignment, &files, &index, &unreadable);
+    let labels: Vec<String> = views.iter().map(|v| v.label.clone()).collect();
+    let mut json = poses_file::poses_json(&alignment, &labels, &index, &unreadable);
+    for (k, view) in views.iter().enumerate() {
+        if let Some((scan, name)) = &view.in_file {
+            let entry = &mut json["scans"][k];
+            entry["file"] = view.file.display().to_string().into();
+            entry["scan"] = (*scan).into();
+            if let Some(name) = name {
+                entry["name"] = name.clone().into();
+            }
+        }
+    }
     if let Some(d) = a.max_distance {
         let evaluations = alignment.evaluate(&scans, d)?;
         for (k, e) in evaluations.iter().enumerate() {
@@ -111,7 +124,7 @@ pub fn run(a: AlignArgs) -> Result<()> {
                 "sdfreg: within {} of the other scans: {:.3} of a scan's points on average, lowest {lowest:.3} ({})",
                 crate::args::shown(d),
                 measured.iter().map(|m| m.1).sum::<f64>() / measured.len() as f64,
-                a.scans[index[worst]].display(),
+                views[index[worst]].label,
             );
         }
     }
@@ -131,8 +144,8 @@ pub fn run(a: AlignArgs) -> Result<()> {
     let t = &alignment.times;
     eprintln!(
         "sdfreg: {placed} of {} scans aligned into the frame of {} in {:.1} s (models {:.1} s, pairs {:.1} s, graph {:.2} s, unplaced {:.1} s, consensus {:.1} s, joint refinement {:.1} s); {} of {} pairs kept",
-        a.scans.len(),
-        a.scans[a.anchor].display(),
+        views.len(),
+        views[a.anchor].label,
         alignment.time.as_secs_f64(),
         t.models.as_secs_f64(),
         t.pairs.as_secs_f64(),
@@ -143,16 +156,82 @@ pub fn run(a: AlignArgs) -> Result<()> {
         alignment.edges.iter().filter(|e| e.kept).count(),
         alignment.edges.len(),
     );
-    let left = a.scans.len() - placed;
+    let left = views.len() - placed;
     if left > 0 {
         return Err(SomeLeftOut {
             left,
-            total: a.scans.len(),
+            total: views.len(),
             output: a.output.display().to_string(),
         }
         .into());
     }
     Ok(())
+}
+
+/// One scan given to the alignment: a cloud file, or one scan of an E57 file that holds several.
+struct View {
+    file: PathBuf,
+    /// For one scan of an E57 file: its index in the file and its name there.
+    in_file: Option<(usize, Option<String>)>,
+    /// How messages and poses.json's edges name it: the file, `#k` after it for the k-th scan
+    /// of an E57 file.
+    label: String,
+}
+
+/// The scans in `path`: its cloud, or each scan of an E57 file that holds more than one, in
+/// its own frame (the file's poses are not used: they are what the alignment finds), each
+/// with its points or why it cannot be read.
+fn read_views(
+    path: &Path,
+    input: &crate::args::InputArgs,
+    seed: u64,
+) -> Vec<(View, Result<Vec<Point3<f64>>>)> {
+    let whole = |points| {
+        let label = path.display().to_string();
+        let view = View {
+            file: path.into(),
+            in_file: None,
+            label,
+        };
+        vec![(view, points)]
+    };
+    if !matches!(Format::of(path), Ok(Format::E57)) {
+        return whole(crate::read_cloud(path, input, seed));
+    }
+    let scans = match read_e57_scans(path, input.drop_non_finite) {
+        Ok((scans, _)) if scans.len() < 2 => return whole(crate::read_cloud(path, input, seed)),
+        Ok((scans, dropped)) => {
+            if dropped > 0 {
+                eprintln!(
+                    "sdfreg: {}: dropped {dropped} points with a NaN or infinite coordinate",
+                    path.display()
+                );
+            }
+            scans
+        }
+        Err(e) => return whole(Err(e.into())),
+    };
+    scans
+        .into_iter()
+        .enumerate()
+        .map(|(k, scan)| {
+            let label = format!("{}#{k}", path.display());
+            let points = if scan.points.is_empty() {
+                Err(anyhow::anyhow!("scan {k} has no points"))
+            } else {
+                for message in LeftOut::of(&scan.points).messages(scan.points.len()) {
+                    eprintln!("sdfreg: {label}: {message}");
+                }
+                Ok(scan.points)
+            };
+            let view = View {
+                file: path.into(),
+                in_file: Some((k, scan.name)),
+                label,
+            };
+            (view, points)
+        })
+        .collect()
 }
 
 /// Initial poses from a poses file (its `scans[].transformation`, in order; one per scan, `None`

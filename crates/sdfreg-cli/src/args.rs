@@ -290,7 +290,7 @@ pub struct InputArgs {
 
 #[derive(Args, Debug)]
 pub struct FitArgs {
-    /// Cloud to model (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
+    /// Cloud to model (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv).
     pub target: PathBuf,
     /// The model file to write (.sdfm).
     #[arg(long, short)]
@@ -323,7 +323,7 @@ pub struct MeshArgs {
 pub struct TrackArgs {
     /// The model (.sdfm, from `sdfreg fit`).
     pub model: PathBuf,
-    /// The frames, in order (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
+    /// The frames, in order (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv).
     #[arg(required = true)]
     pub frames: Vec<PathBuf>,
     /// Where to write one JSON line per frame (`file`, `transformation` mapping the frame into
@@ -345,9 +345,9 @@ pub struct TrackArgs {
 
 #[derive(Args, Debug)]
 pub struct RegisterArgs {
-    /// Cloud to move (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
+    /// Cloud to move (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv).
     pub source: PathBuf,
-    /// Fixed cloud (.ply, .pcd, .las, .laz, .xyz, .txt, .csv), or a model written by `sdfreg fit` (.sdfm),
+    /// Fixed cloud (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv), or a model written by `sdfreg fit` (.sdfm),
     /// registered against without fitting (Φ frozen; see --refine).
     pub target: PathBuf,
     /// With a model as TARGET: refine a private copy of its SDF with the moved source among its
@@ -361,7 +361,7 @@ pub struct RegisterArgs {
     /// Write the result here instead of printing it: JSON when it ends in .json, else the 4×4 as text.
     #[arg(long, short)]
     pub output: Option<PathBuf>,
-    /// Write the moved source cloud here (.ply, .pcd, .las, .laz or text).
+    /// Write the moved source cloud here (.ply, .pcd, .las, .laz, .e57 or text).
     #[arg(long)]
     pub aligned: Option<PathBuf>,
     /// Initial guess: a text file with a 4×4 matrix (source into target); skips the multi-start.
@@ -401,10 +401,13 @@ pub struct BatchArgs {
 
 #[derive(Args, Debug)]
 pub struct AlignArgs {
-    /// The scans (.ply, .pcd, .las, .laz, .xyz, .txt, .csv), each in its own frame; at least two.
+    /// The scans (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv), each in its own frame; at
+    /// least two. An E57 file that holds several scans gives each as a scan, in its own frame
+    /// (the file's poses are not used), named FILE#k in messages and edges.
     #[arg(required = true)]
     pub scans: Vec<PathBuf>,
-    /// Where to write the poses (JSON): per scan `file`, `transformation` (4×4, the scan's
+    /// Where to write the poses (JSON): per scan `file` (with `scan` and `name` for a scan of
+    /// an E57 file), `transformation` (4×4, the scan's
     /// coordinates into the anchor's frame; null for a scan left out, with `left_out` saying
     /// why) and `fitness`; `edges` (each pair registered, its fitness, whether the pose graph
     /// kept it, with --seen-from its `in_free_space` share); `time_ms` and `stage_ms`.
@@ -420,7 +423,8 @@ pub struct AlignArgs {
     /// Grid cells along the largest side for --mesh (4 to 1024).
     #[arg(long, default_value_t = 256)]
     pub mesh_resolution: usize,
-    /// The scan (0-based, in the order given) whose frame the poses map into.
+    /// The scan (0-based, in the order given, each scan of an E57 file counted) whose frame the
+    /// poses map into.
     #[arg(long, default_value_t = 0)]
     pub anchor: usize,
     /// Approximate initial poses: a poses.json (its `scans[].transformation`, one per scan, in
@@ -524,7 +528,7 @@ pub struct EvalArgs {
 
 #[derive(Args, Debug)]
 pub struct FitnessArgs {
-    /// The cloud to move (.ply, .pcd, .las, .laz, .xyz, .txt, .csv).
+    /// The cloud to move (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv).
     pub source: PathBuf,
     /// What it is measured against, fixed: a cloud, a model (.sdfm: the target points it was
     /// fitted to), or with --exact-mesh a mesh.

@@ -252,6 +252,10 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
     // The same compressed (LAZ), cut in half: its chunk table lies past the end.
     sdfreg_core::io::write_point_cloud(dir.path().join("full.laz"), &src).unwrap();
     let laz = std::fs::read(dir.path().join("full.laz")).unwrap();
+    // The same as E57, one byte of its points flipped: the page's checksum fails.
+    sdfreg_core::io::write_point_cloud(dir.path().join("full.e57"), &src).unwrap();
+    let mut e57 = std::fs::read(dir.path().join("full.e57")).unwrap();
+    e57[100] ^= 1;
     let las_points: &'static str = format!(
         "the file ends inside points 0..{0} of the {0} the header declares",
         src.len()
@@ -281,6 +285,7 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
         ("truncated LAS", "cut.las", Some(las[..las.len() - 100].to_vec()), vec!["cut.las", las_points]),
         ("not a LAS", "text.las", Some(b"hello\n".to_vec()), vec!["text.las", "not a LAS file", "\"hell\""]),
         ("truncated LAZ", "cut.laz", Some(laz[..laz.len() / 2].to_vec()), vec!["cut.laz", "LASzip chunk table is said to begin at byte"]),
+        ("damaged E57", "flipped.e57", Some(e57), vec!["flipped.e57", "invalid checksum", "for page 0"]),
         ("PTS cut short", "cut.pts", Some(format!("60\n{rows}").into_bytes()), vec!["cut.pts:1", "point count 60, but 50 rows follow"]),
         ("fewer than 10 points", "few.xyz", Some(rows.lines().take(5).map(|l| format!("{l}\n")).collect::<String>().into_bytes()), vec!["few.xyz", "5 points; at least 10"]),
         ("one repeated point", "same.xyz", Some("1 2 3\n".repeat(50).into_bytes()), vec!["same.xyz", "no extent"]),
@@ -328,11 +333,12 @@ fn bad_input_exits_2_with_one_line_naming_the_file_and_the_place() {
 fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
     let dir = tempfile::tempdir().unwrap();
     let truth = pair(dir.path());
-    // The source as PCD and as LAZ, and a copy with two NaN rows (as a range scanner writes
+    // The source as PCD, LAZ and E57, and a copy with two NaN rows (as a range scanner writes
     // them).
     let src = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
     sdfreg_core::io::write_point_cloud(dir.path().join("src.pcd"), &src).unwrap();
     sdfreg_core::io::write_point_cloud(dir.path().join("src.laz"), &src).unwrap();
+    sdfreg_core::io::write_point_cloud(dir.path().join("src.e57"), &src).unwrap();
     let mut text = std::fs::read_to_string(dir.path().join("src.xyz")).unwrap();
     text.insert_str(0, "nan nan nan\n");
     text.push_str("1 NaN 2\n");
@@ -363,6 +369,7 @@ fn nan_points_are_refused_or_dropped_on_request_and_pcd_is_read() {
         ("holes.ply", Some("--drop-non-finite")),
         ("src.pcd", None),
         ("src.laz", None),
+        ("src.e57", None),
     ] {
         let out = sdfreg()
             .arg("register")
@@ -1144,6 +1151,101 @@ fn blob_views(dir: &Path, n: usize) -> Vec<Isometry3<f64>> {
     }
     let first = poses[0].inverse();
     poses.iter().map(|p| first * p).collect()
+}
+
+#[test]
+fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
+    use e57::{Quaternion, Record, RecordValue, Transform, Translation};
+    let dir = tempfile::tempdir().unwrap();
+    let truth = blob_views(dir.path(), 3);
+    // The three views as the scans of one E57 file, as a scanner's software exports a campaign:
+    // each with a name and a pose (here a wrong one: the alignment does not use it), then a scan
+    // whose every point has no coordinates.
+    let path = dir.path().join("campaign.e57");
+    let mut writer = e57::E57Writer::from_file(&path, "{campaign}").unwrap();
+    let prototype = || {
+        vec![
+            Record::CARTESIAN_X_F64,
+            Record::CARTESIAN_Y_F64,
+            Record::CARTESIAN_Z_F64,
+            Record::CARTESIAN_INVALID_STATE,
+        ]
+    };
+    for k in 0..4 {
+        let mut scan = writer
+            .add_pointcloud(&format!("{{scan-{k}}}"), prototype())
+            .unwrap();
+        scan.set_name(Some(format!("station {k}")));
+        scan.set_transform(Some(Transform {
+            rotation: Quaternion {
+                w: 0.6,
+                x: 0.8,
+                y: 0.0,
+                z: 0.0,
+            },
+            translation: Translation {
+                x: 5.0 * k as f64,
+                y: 1.0,
+                z: 0.0,
+            },
+        }));
+        let points = match k {
+            3 => vec![Point3::origin(); 10],
+            _ => {
+                sdfreg_core::io::read_point_cloud(dir.path().join(format!("view_{k}.ply"))).unwrap()
+            }
+        };
+        for p in points {
+            let state = i64::from(k == 3) * 2;
+            let v = |x: f64| RecordValue::Double(x);
+            scan.add_point(vec![v(p.x), v(p.y), v(p.z), RecordValue::Integer(state)])
+                .unwrap();
+        }
+        scan.finalize().unwrap();
+    }
+    writer.finalize().unwrap();
+    drop(writer);
+    let poses = dir.path().join("poses.json");
+    let out = sdfreg()
+        .arg("align")
+        .arg(&path)
+        .args(QUICK)
+        .arg("-o")
+        .arg(&poses)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("campaign.e57#3: left out: scan 3 has no points"),
+        "{err}"
+    );
+    assert!(
+        err.contains("3 of 4 scans aligned into the frame of"),
+        "{err}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
+    let scans = v["scans"].as_array().unwrap();
+    assert_eq!(scans.len(), 4);
+    for (k, t) in truth.iter().enumerate() {
+        assert_eq!(scans[k]["file"], path.display().to_string());
+        assert_eq!(
+            (scans[k]["scan"].as_u64(), scans[k]["name"].as_str()),
+            (Some(k as u64), Some(format!("station {k}").as_str()))
+        );
+        let rows: Vec<Vec<f64>> =
+            serde_json::from_value(scans[k]["transformation"].clone()).unwrap();
+        let m = Matrix4::from_fn(|r, c| rows[r][c]);
+        assert!((m - t.to_homogeneous()).amax() < 0.01, "scan {k}: {m}");
+    }
+    assert!(scans[3]["transformation"].is_null() && scans[3]["scan"] == 3);
+    let edge = &v["edges"][0];
+    let named = format!("{}#", path.display());
+    assert!(
+        edge["target"].as_str().unwrap().starts_with(&named),
+        "{edge}"
+    );
 }
 
 #[test]

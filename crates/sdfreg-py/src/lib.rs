@@ -218,8 +218,10 @@ fn _settings_keywords() -> std::collections::BTreeMap<&'static str, Vec<&'static
 /// Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
 /// element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
 /// ``.las`` and ``.laz`` (any version and point format, LASzip-compressed or not; x, y, z
-/// with the file's scale and offset), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
-/// columns; a ``.pts`` block's point-count line is checked against its rows).
+/// with the file's scale and offset), ``.e57`` (every scan placed by its pose in the file's
+/// frame; spherical scans converted; points without coordinates skipped), ``.xyz``, ``.txt``,
+/// ``.csv``, ``.pts`` (first three columns; a ``.pts`` block's point-count line is
+/// checked against its rows).
 ///
 /// Args:
 ///     path: The file.
@@ -259,9 +261,61 @@ fn read_point_cloud(
 }
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Reads each scan of an E57 file apart: a list of ``(name, pose, points)``, in the file's
+/// order. ``name`` is the scan's name in the file (``None`` if it has none), ``pose`` the
+/// (4, 4) float64 that maps the scan's coordinates into the file's frame, ``points`` its
+/// (N, 3) float64 points in its own frame (points the file marks as having no coordinates are
+/// not points; a scan may have none). :func:`read_point_cloud` gives all of them in the file's
+/// frame instead; ``sdfreg.align([points for _, _, points in scans])`` aligns them anew.
+///
+/// Args:
+///     path: The ``.e57`` file.
+///     drop_non_finite: Drop points with a NaN or infinite coordinate and warn how many,
+///         instead of raising.
+///
+/// Raises:
+///     OSError: the file cannot be read, is not an E57 file, fails a page's checksum, has no
+///         point in any scan, or a NaN coordinate (naming the file and the scan).
+#[pyfunction]
+#[pyo3(signature = (path, *, drop_non_finite = false))]
+fn read_e57_scans(
+    py: Python<'_>,
+    path: PathBuf,
+    drop_non_finite: bool,
+) -> PyResult<Vec<E57ScanArrays<'_>>> {
+    let (scans, dropped) = py
+        .detach(|| sdfreg_core::io::read_e57_scans(&path, drop_non_finite))
+        .map_err(error::io)?;
+    if dropped > 0 {
+        let message = format!(
+            "{}: dropped {dropped} points with a NaN or infinite coordinate",
+            path.display()
+        );
+        error::warn(py, message)?;
+    }
+    Ok(scans
+        .into_iter()
+        .map(|s| {
+            (
+                s.name,
+                convert::matrix4(py, &s.pose.to_homogeneous()),
+                convert::points_to_array(py, &s.points),
+            )
+        })
+        .collect())
+}
+
+/// One scan of an E57 file for Python: name, pose, points.
+type E57ScanArrays<'py> = (
+    Option<String>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+);
+
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
 /// Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
 /// float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
-/// scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; text formats: one ``x y z`` line per point, full
+/// scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; ``.e57``: one scan of float64; text formats: one ``x y z`` line per point, full
 /// precision, after a point-count line in ``.pts``). An existing file is replaced.
 ///
 /// Raises:
@@ -286,6 +340,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(align::read_poses, m)?)?;
     m.add_function(wrap_pyfunction!(batch::register_many, m)?)?;
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(read_e57_scans, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(_settings_keywords, m)?)?;

@@ -11,7 +11,7 @@ import sdfreg
 from conftest import blob
 
 
-@pytest.mark.parametrize("name", ["a.ply", "a.pcd", "a.xyz", "a.txt", "a.csv", "a.PTS"])
+@pytest.mark.parametrize("name", ["a.ply", "a.pcd", "a.e57", "a.xyz", "a.txt", "a.csv", "a.PTS"])
 def test_round_trip_is_exact(tmp_path: Path, name: str) -> None:
     points = blob(300, np.random.default_rng(1)) * 1e3 + np.array([6e5, -4e6, 12.5])
     sdfreg.write_point_cloud(tmp_path / name, points)
@@ -37,6 +37,34 @@ def test_las_round_trip_keeps_survey_coordinates_to_its_scale(tmp_path: Path) ->
     (tmp_path / "cut.laz").write_bytes(laz[: len(laz) // 2])
     with pytest.raises(OSError, match=r"cut\.laz: the LASzip chunk table is said to begin"):
         sdfreg.read_point_cloud(tmp_path / "cut.laz")
+
+
+def test_a_damaged_or_foreign_e57_file_is_refused_by_name(tmp_path: Path) -> None:
+    """Every E57 page carries a checksum: one flipped bit is refused, not read to wrong points."""
+    sdfreg.write_point_cloud(tmp_path / "a.e57", blob(300, np.random.default_rng(1)))
+    e57 = bytearray((tmp_path / "a.e57").read_bytes())
+    assert e57[:8] == b"ASTM-E57"
+    e57[100] ^= 1
+    (tmp_path / "flipped.e57").write_bytes(e57)
+    with pytest.raises(OSError, match=r"flipped\.e57: .*invalid checksum .* for page 0"):
+        sdfreg.read_point_cloud(tmp_path / "flipped.e57")
+    (tmp_path / "cloud.e57").write_text("1 2 3\n4 5 6\n")
+    with pytest.raises(OSError, match=r'cloud\.e57: not an E57 file: it begins with "1 2 3'):
+        sdfreg.read_point_cloud(tmp_path / "cloud.e57")
+
+
+def test_e57_scans_are_read_apart_with_their_pose(tmp_path: Path) -> None:
+    points = blob(300, np.random.default_rng(3)) + np.array([10.0, -2.0, 0.5])
+    sdfreg.write_point_cloud(tmp_path / "a.e57", points)
+    scans = sdfreg.read_e57_scans(tmp_path / "a.e57")
+    assert len(scans) == 1
+    name, pose, back = scans[0]
+    assert name is None and pose.shape == (4, 4) and pose.dtype == np.float64
+    np.testing.assert_array_equal(pose, np.eye(4))
+    np.testing.assert_array_equal(back, points)
+    sdfreg.write_point_cloud(tmp_path / "a.ply", points)
+    with pytest.raises(OSError, match=r'a\.ply: not an E57 file: it begins with "ply'):
+        sdfreg.read_e57_scans(tmp_path / "a.ply")
 
 
 def test_paths_may_be_str_or_pathlike_and_float32_is_written(tmp_path: Path) -> None:

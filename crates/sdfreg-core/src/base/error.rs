@@ -209,7 +209,7 @@ pub enum IoError {
         source: std::io::Error,
     },
     /// The extension names no supported format.
-    #[error("{path}: unknown point-cloud format {extension:?} (expected .ply, .pcd, .las, .laz, .xyz, .txt, .csv or .pts)")]
+    #[error("{path}: unknown point-cloud format {extension:?} (expected .ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv or .pts)")]
     UnknownFormat {
         /// The file.
         path: PathBuf,

@@ -1,17 +1,19 @@
 //! Reading and writing point clouds: PLY (ascii and binary, via ply-rs), PCD (ascii, binary and
-//! binary_compressed, via pcd-rs), LAS and LAZ (via las-rs and its LASzip decoder) and
-//! XYZ/TXT/CSV/PTS text.
+//! binary_compressed, via pcd-rs), LAS and LAZ (via las-rs and its LASzip decoder), E57 (via
+//! the e57 crate) and XYZ/TXT/CSV/PTS text.
 //!
 //! Entry points: [`read_point_cloud`] and [`write_point_cloud`], which choose the format from
 //! the file's extension (case-insensitive).
 
 mod bytes;
+mod e57;
 mod finite;
 mod las;
 mod pcd;
 mod ply;
 mod xyz;
 
+pub use e57::E57Scan;
 pub use ply::MeshData;
 
 use std::path::Path;
@@ -31,6 +33,10 @@ pub enum Format {
     /// ASPRS LAS (`.las`) and LASzip-compressed LAS (`.laz`): each point's scaled `x`, `y`,
     /// `z`. Written compressed when the path ends in `.laz`.
     Las,
+    /// ASTM E57 (`.e57`), as terrestrial laser scanners export: every scan's points placed by
+    /// its pose in the file's frame, spherical scans converted, points without coordinates
+    /// skipped.
+    E57,
     /// Text, one point per line, first three columns separated by spaces, tabs or commas.
     Xyz,
 }
@@ -47,6 +53,7 @@ impl Format {
             "ply" => Ok(Format::Ply),
             "pcd" => Ok(Format::Pcd),
             "las" | "laz" => Ok(Format::Las),
+            "e57" => Ok(Format::E57),
             "xyz" | "txt" | "csv" | "pts" => Ok(Format::Xyz),
             _ => Err(IoError::UnknownFormat {
                 path: path.to_path_buf(),
@@ -84,6 +91,47 @@ pub fn read_point_cloud_dropping_non_finite(
     }
     let dropped = before - points.len();
     Ok((points, dropped))
+}
+
+/// Reads each scan of an E57 file apart: its name, its pose (into the file's frame) and its
+/// points in its own frame ([`read_point_cloud`] gives them all in the file's frame instead).
+/// A point with a NaN or infinite coordinate is refused, naming its scan, or with
+/// `drop_non_finite` dropped and counted (the second value). Refuses a file with no point in
+/// any scan.
+pub fn read_e57_scans(
+    path: impl AsRef<Path>,
+    drop_non_finite: bool,
+) -> Result<(Vec<E57Scan>, usize), IoError> {
+    let path = path.as_ref();
+    let file = std::fs::File::open(path).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let reader = std::io::BufReader::with_capacity(e57::PAGE_BYTES, file);
+    let mut scans = e57::read_scans(path, reader)?;
+    let mut dropped = 0;
+    for (k, scan) in scans.iter_mut().enumerate() {
+        if drop_non_finite {
+            let before = scan.points.len();
+            scan.points
+                .retain(|p| p.coords.iter().all(|v| v.is_finite()));
+            dropped += before - scan.points.len();
+        } else if let Err(IoError::NonFinite { index, .. }) =
+            refuse_non_finite(path, &scan.points, None)
+        {
+            return Err(IoError::Parse {
+                path: path.to_path_buf(),
+                line: None,
+                message: format!("scan {k}: point {index} has a non-finite coordinate"),
+            });
+        }
+    }
+    if scans.iter().all(|s| s.points.is_empty()) {
+        return Err(IoError::Empty {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok((scans, dropped))
 }
 
 /// Reads a PLY file's vertices and triangles (polygons split into fans; none for a point
@@ -166,8 +214,14 @@ fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoEr
             path: path.to_path_buf(),
         });
     }
-    // Streamed: a large binary file is never held in memory twice.
-    let reader = std::io::BufReader::with_capacity(1 << 20, file);
+    // Streamed: a large binary file is never held in memory twice. The E57 reader seeks to
+    // each page it reads, which empties a buffer: it reads them through one of a page.
+    let capacity = if format == Format::E57 {
+        e57::PAGE_BYTES
+    } else {
+        1 << 20
+    };
+    let reader = std::io::BufReader::with_capacity(capacity, file);
     parse(format, path, reader, available, keep_non_finite)
 }
 
@@ -182,6 +236,7 @@ fn parse(
         Format::Ply => ply::read(path, reader, keep_non_finite)?,
         Format::Pcd => pcd::read(path, reader, available)?,
         Format::Las => las::read(path, reader)?,
+        Format::E57 => e57::read(path, reader)?,
         Format::Xyz => {
             let mut bytes = Vec::new();
             reader
@@ -203,7 +258,7 @@ fn parse(
 
 /// Writes points to `path` (PLY and PCD: binary little-endian doubles; text: `x y z` lines with
 /// full precision, after a point-count line in `.pts`; LAS: 32-bit integers at a scale of
-/// 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in `.laz`).
+/// 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in `.laz`; E57: one scan of doubles).
 /// Overwrites an existing file: callers decide whether that is wanted.
 pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Result<(), IoError> {
     let path = path.as_ref();
@@ -211,6 +266,7 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
         Format::Ply => ply::encode(points),
         Format::Pcd => pcd::encode(points),
         Format::Las => las::encode(path, points)?,
+        Format::E57 => e57::encode(path, points)?,
         Format::Xyz => xyz::encode(points, xyz::is_pts(path)),
     };
     std::fs::write(path, bytes).map_err(|source| IoError::Io {

@@ -51,6 +51,7 @@ __all__ = [
     "read_mesh",
     "_mesh_model_from_parts",
     "_core_defaults",
+    "read_e57_scans",
     "read_point_cloud",
     "read_poses",
     "register",
@@ -1165,8 +1166,10 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
     Formats by extension: ``.ply`` (ascii or binary, any numeric type; the ``vertex``
     element's x, y, z), ``.pcd`` (ascii, binary or binary_compressed; the x, y, z fields),
     ``.las`` and ``.laz`` (any version and point format, LASzip-compressed or not; x, y, z
-    with the file's scale and offset), ``.xyz``, ``.txt``, ``.csv``, ``.pts`` (first three
-    columns; a ``.pts`` block's point-count line is checked against its rows).
+    with the file's scale and offset), ``.e57`` (every scan placed by its pose in the file's
+    frame; spherical scans converted; points without coordinates skipped), ``.xyz``, ``.txt``,
+    ``.csv``, ``.pts`` (first three columns; a ``.pts`` block's point-count line is
+    checked against its rows).
 
     Args:
         path: The file.
@@ -1180,10 +1183,30 @@ def read_point_cloud(path: _PathLike, *, drop_non_finite: bool = False) -> npt.N
             for text and ascii PLY, the line.
     """
 
+def read_e57_scans(
+    path: _PathLike, *, drop_non_finite: bool = False
+) -> List[Tuple[Optional[str], npt.NDArray[np.float64], npt.NDArray[np.float64]]]:
+    """Reads each scan of an E57 file apart: a list of ``(name, pose, points)``, in the file's
+    order. ``name`` is the scan's name in the file (``None`` if it has none), ``pose`` the
+    (4, 4) float64 that maps the scan's coordinates into the file's frame, ``points`` its
+    (N, 3) float64 points in its own frame (points the file marks as having no coordinates are
+    not points; a scan may have none). :func:`read_point_cloud` gives all of them in the file's
+    frame instead; ``sdfreg.align([points for _, _, points in scans])`` aligns them anew.
+
+    Args:
+        path: The ``.e57`` file.
+        drop_non_finite: Drop points with a NaN or infinite coordinate and warn how many,
+            instead of raising.
+
+    Raises:
+        OSError: the file cannot be read, is not an E57 file, fails a page's checksum, has no
+            point in any scan, or a NaN coordinate (naming the file and the scan).
+    """
+
 def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
     """Writes (N, 3) finite points; the format follows the extension (``.ply``: binary
     float64; ``.pcd``: binary float64; ``.las``: LAS 1.2 point format 0, integers at a
-    scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; text formats: one ``x y z`` line per point, full
+    scale of 10⁻⁹–10⁻⁸ of the cloud's extent, LASzip-compressed in ``.laz``; ``.e57``: one scan of float64; text formats: one ``x y z`` line per point, full
     precision, after a point-count line in ``.pts``). An existing file is replaced.
 
     Raises:
