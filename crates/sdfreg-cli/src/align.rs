@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use nalgebra::{Isometry3, Point3};
 use sdfreg_core::geometry::cloud::LeftOut;
-use sdfreg_core::io::{read_e57_scans, write_mesh, Format};
+use sdfreg_core::io::{
+    read_e57_scans, write_e57_scans, write_mesh, write_point_cloud, E57ScanRef, Format,
+};
 use sdfreg_core::views::poses_file;
 use sdfreg_core::AlignSettings;
 
@@ -23,11 +25,19 @@ pub struct SomeLeftOut {
 
 pub fn run(a: AlignArgs) -> Result<()> {
     let inputs: Vec<&Path> = a.scans.iter().map(PathBuf::as_path).collect();
-    for out in [Some(&a.output), a.save_model.as_ref(), a.mesh.as_ref()]
-        .into_iter()
-        .flatten()
+    for out in [
+        Some(&a.output),
+        a.save_model.as_ref(),
+        a.mesh.as_ref(),
+        a.aligned.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
     {
         crate::refuse_overwrite(out, &inputs, a.force)?;
+    }
+    if let Some(path) = &a.aligned {
+        Format::of(path)?;
     }
     if let Some(d) = a.max_distance.filter(|d| !(d.is_finite() && *d > 0.0)) {
         bail!(
@@ -130,6 +140,9 @@ pub fn run(a: AlignArgs) -> Result<()> {
     }
     std::fs::write(&a.output, serde_json::to_string_pretty(&json)? + "\n")
         .with_context(|| format!("{}", a.output.display()))?;
+    if let Some(path) = &a.aligned {
+        write_aligned(path, &alignment, &scans, &index, &views)?;
+    }
     if a.save_model.is_some() || a.mesh.is_some() {
         let model = alignment.merged_model(&scans, &settings.register)?;
         if let Some(path) = &a.save_model {
@@ -164,6 +177,46 @@ pub fn run(a: AlignArgs) -> Result<()> {
             output: a.output.display().to_string(),
         }
         .into());
+    }
+    Ok(())
+}
+
+/// `--aligned`: the placed scans, as the scans of an E57 file (each its points as read and its
+/// pose into the anchor's frame, named as in its E57 file or by its file) or, in another format,
+/// their points moved into the anchor's frame as one cloud.
+fn write_aligned(
+    path: &Path,
+    alignment: &sdfreg_core::Alignment,
+    scans: &[Vec<Point3<f64>>],
+    index: &[usize],
+    views: &[View],
+) -> Result<()> {
+    let placed: Vec<E57ScanRef<'_>> = alignment
+        .poses
+        .iter()
+        .zip(scans)
+        .zip(index)
+        .filter_map(|((pose, points), &k)| {
+            let view = &views[k];
+            let name = match &view.in_file {
+                Some((_, Some(name))) => name.as_str(),
+                _ => view.label.as_str(),
+            };
+            pose.map(|pose| E57ScanRef {
+                name: Some(name),
+                pose,
+                points,
+            })
+        })
+        .collect();
+    if matches!(Format::of(path), Ok(Format::E57)) {
+        write_e57_scans(path, &placed)?;
+    } else {
+        let moved: Vec<Point3<f64>> = placed
+            .iter()
+            .flat_map(|s| s.points.iter().map(move |p| s.pose * p))
+            .collect();
+        write_point_cloud(path, &moved)?;
     }
     Ok(())
 }

@@ -420,6 +420,12 @@ pub struct AlignArgs {
     /// Also write the zero level set of that model as a mesh (.ply).
     #[arg(long)]
     pub mesh: Option<PathBuf>,
+    /// Also write the placed scans: as .e57, each as a scan of its own, its points as read and
+    /// its pose into the anchor's frame (what scanning software reads as a registered
+    /// campaign); in another format, all their points moved into the anchor's frame, as one
+    /// cloud.
+    #[arg(long, value_name = "FILE")]
+    pub aligned: Option<PathBuf>,
     /// Grid cells along the largest side for --mesh (4 to 1024).
     #[arg(long, default_value_t = 256)]
     pub mesh_resolution: usize,

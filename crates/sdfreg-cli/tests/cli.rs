@@ -1205,13 +1205,18 @@ fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
     }
     writer.finalize().unwrap();
     drop(writer);
-    let poses = dir.path().join("poses.json");
+    let (poses, aligned) = (
+        dir.path().join("poses.json"),
+        dir.path().join("aligned.e57"),
+    );
     let out = sdfreg()
         .arg("align")
         .arg(&path)
         .args(QUICK)
         .arg("-o")
         .arg(&poses)
+        .arg("--aligned")
+        .arg(&aligned)
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -1246,6 +1251,18 @@ fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
         edge["target"].as_str().unwrap().starts_with(&named),
         "{edge}"
     );
+    // --aligned: the placed scans as a registered campaign, each its points as read, its name
+    // and its pose into the anchor's frame.
+    let (back, _) = sdfreg_core::io::read_e57_scans(&aligned, false).unwrap();
+    assert_eq!(back.len(), 3);
+    for (k, scan) in back.iter().enumerate() {
+        let view = format!("view_{k}.ply");
+        let points = sdfreg_core::io::read_point_cloud(dir.path().join(view)).unwrap();
+        assert_eq!(scan.points, points);
+        assert_eq!(scan.name, Some(format!("station {k}")));
+        let off = (scan.pose.to_homogeneous() - truth[k].to_homogeneous()).amax();
+        assert!(off < 0.01, "scan {k}: {off}");
+    }
 }
 
 #[test]
@@ -1272,6 +1289,8 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         .arg("--mesh")
         .arg(&mesh)
         .args(["--mesh-resolution", "48", "--max-distance", "0.02"])
+        .arg("--aligned")
+        .arg(dir.path().join("placed.xyz"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -1309,6 +1328,20 @@ fn align_puts_views_into_one_frame_and_leaves_out_an_unreadable_scan_by_name() {
         assert!(e["inlier_rmse"].as_f64().unwrap() < 0.02, "{e}");
     }
     assert!(scans[2].get("evaluation").is_none());
+    // --aligned in a cloud format: the three placed views' points in view 0's frame, in order.
+    let placed = sdfreg_core::io::read_point_cloud(dir.path().join("placed.xyz")).unwrap();
+    let mut expected = Vec::new();
+    for (k, t) in truth.iter().enumerate() {
+        let view = sdfreg_core::io::read_point_cloud(dir.path().join(format!("view_{k}.ply")));
+        expected.extend(view.unwrap().into_iter().map(|p| t * p));
+    }
+    assert_eq!(placed.len(), expected.len());
+    let off = placed
+        .iter()
+        .zip(&expected)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(off < 0.02, "placed points {off} off");
     assert!(!v["edges"].as_array().unwrap().is_empty());
     assert!(v["stage_ms"]["pairs"].as_f64().unwrap() > 0.0);
     assert_eq!(

@@ -305,6 +305,55 @@ fn read_e57_scans(
         .collect())
 }
 
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Writes scans as the scans of one E57 file, each with its name, its pose and its points in
+/// its own frame as float64: what :func:`read_e57_scans` reads back, to the bit. An existing file
+/// is replaced. With :func:`align`, a campaign registered anew::
+///
+///     scans = sdfreg.read_e57_scans("campaign.e57")
+///     aligned = sdfreg.align([points for _, _, points in scans])
+///     sdfreg.write_e57_scans("registered.e57", [
+///         (name, pose, points)
+///         for (name, _, points), pose in zip(scans, aligned.poses) if pose is not None
+///     ])
+///
+/// Args:
+///     path: The ``.e57`` file to write.
+///     scans: ``(name, pose, points)`` per scan: ``name`` a str or ``None``, ``pose`` a (4, 4)
+///         rigid transform from the scan's frame into the file's, ``points`` (N, 3) finite.
+///
+/// Raises:
+///     ValueError: a scan is not such a triple, its pose is not rigid or a point is not finite
+///         (naming the scan).
+///     OSError: the file cannot be written.
+#[pyfunction]
+fn write_e57_scans(py: Python<'_>, path: PathBuf, scans: &Bound<'_, PyAny>) -> PyResult<()> {
+    let mut owned = Vec::new();
+    for (k, scan) in scans.try_iter()?.enumerate() {
+        let scan = scan?;
+        let name = format!("scans[{k}]");
+        let triple = || error::argument(&name, "not a (name, pose, points) triple");
+        let (label, pose, points): (Bound<'_, PyAny>, Bound<'_, PyAny>, Bound<'_, PyAny>) =
+            scan.extract().map_err(|_| triple())?;
+        let label: Option<String> = label.extract().map_err(|_| triple())?;
+        let pose = convert::isometry(&pose, &format!("{name} pose"))?;
+        let points = convert::finite_points(&points, &format!("{name} points"))?;
+        owned.push((label, pose, points));
+    }
+    py.detach(|| {
+        let scans: Vec<sdfreg_core::io::E57ScanRef<'_>> = owned
+            .iter()
+            .map(|(name, pose, points)| sdfreg_core::io::E57ScanRef {
+                name: name.as_deref(),
+                pose: *pose,
+                points,
+            })
+            .collect();
+        sdfreg_core::io::write_e57_scans(&path, &scans)
+    })
+    .map_err(error::io)
+}
+
 /// One scan of an E57 file for Python: name, pose, points.
 type E57ScanArrays<'py> = (
     Option<String>,
@@ -341,6 +390,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(batch::register_many, m)?)?;
     m.add_function(wrap_pyfunction!(read_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(read_e57_scans, m)?)?;
+    m.add_function(wrap_pyfunction!(write_e57_scans, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(_settings_keywords, m)?)?;

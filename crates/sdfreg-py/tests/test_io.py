@@ -67,6 +67,29 @@ def test_e57_scans_are_read_apart_with_their_pose(tmp_path: Path) -> None:
         sdfreg.read_e57_scans(tmp_path / "a.ply")
 
 
+def test_e57_scans_written_with_names_and_poses_read_back(tmp_path: Path) -> None:
+    rng = np.random.default_rng(4)
+    turn = np.eye(4)
+    turn[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    turn[:3, 3] = [5.0, -2.0, 0.25]
+    scans = [("north", np.eye(4), blob(200, rng)), (None, turn, blob(150, rng))]
+    sdfreg.write_e57_scans(tmp_path / "c.e57", scans)
+    back = sdfreg.read_e57_scans(tmp_path / "c.e57")
+    assert [name for name, _, _ in back] == ["north", None]
+    for (_, pose, points), (_, p, q) in zip(scans, back):
+        np.testing.assert_allclose(p, pose, atol=1e-14)
+        np.testing.assert_array_equal(q, points)
+    # All of them in the file's frame, as read_point_cloud gives them.
+    placed = np.vstack([points @ pose[:3, :3].T + pose[:3, 3] for _, pose, points in scans])
+    np.testing.assert_allclose(sdfreg.read_point_cloud(tmp_path / "c.e57"), placed, atol=1e-12)
+    squashed = np.diag([1.0, 1.0, 0.5, 1.0])
+    with pytest.raises(ValueError, match=r"scans\[1\] pose.*not a rigid transform"):
+        sdfreg.write_e57_scans(tmp_path / "d.e57", [scans[0], ("x", squashed, scans[1][2])])
+    with pytest.raises(ValueError, match=r"scans\[0\].*\(name, pose, points\) triple"):
+        sdfreg.write_e57_scans(tmp_path / "d.e57", [scans[0][2]])
+    assert not (tmp_path / "d.e57").exists()
+
+
 def test_paths_may_be_str_or_pathlike_and_float32_is_written(tmp_path: Path) -> None:
     points = blob(50, np.random.default_rng(2)).astype(np.float32)
     sdfreg.write_point_cloud(str(tmp_path / "a.ply"), points)

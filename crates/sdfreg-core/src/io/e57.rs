@@ -126,43 +126,90 @@ fn pose(cloud: &e57::PointCloud) -> Option<Isometry3<f64>> {
     ))
 }
 
+/// One scan to write to an E57 file: its name, its pose (into the file's frame) and its points
+/// in its own frame, borrowed.
+#[derive(Clone, Copy, Debug)]
+pub struct E57ScanRef<'a> {
+    /// The scan's name in the file (written as its `name`), if any.
+    pub name: Option<&'a str>,
+    /// Maps the scan's coordinates into the file's frame.
+    pub pose: Isometry3<f64>,
+    /// The scan's points in its own frame.
+    pub points: &'a [Point3<f64>],
+}
+
 /// Encodes points as an E57 file: one scan of 64-bit float Cartesian coordinates, identity pose.
-/// The file's and the scan's GUIDs are drawn from the points, so the same cloud writes the same
-/// bytes.
 pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoError> {
+    let scan = E57ScanRef {
+        name: None,
+        pose: Isometry3::identity(),
+        points,
+    };
+    encode_scans(path, &[scan])
+}
+
+/// Encodes scans as an E57 file: each of 64-bit float Cartesian coordinates, with its name and
+/// its pose (the quaternion and translation as E57 stores them). The file's and the scans'
+/// GUIDs are drawn from the points and poses, so the same scans write the same bytes.
+pub(super) fn encode_scans(path: &Path, scans: &[E57ScanRef<'_>]) -> Result<Vec<u8>, IoError> {
     let e57 = |e: e57::Error| damaged(path, format!("writing E57: {e}"));
-    let guid = guid_of(points);
-    let scan_guid = Uuid::new_v5(&guid, b"scan 0");
+    let guid = guid_of(scans);
     let mut bytes = Cursor::new(Vec::new());
     {
         let mut writer = E57Writer::new(&mut bytes, &guid.braced().to_string()).map_err(e57)?;
-        let prototype = vec![
-            Record::CARTESIAN_X_F64,
-            Record::CARTESIAN_Y_F64,
-            Record::CARTESIAN_Z_F64,
-        ];
-        let mut scan = writer
-            .add_pointcloud(&scan_guid.braced().to_string(), prototype)
-            .map_err(e57)?;
-        for p in points {
-            scan.add_point(vec![
-                RecordValue::Double(p.x),
-                RecordValue::Double(p.y),
-                RecordValue::Double(p.z),
-            ])
-            .map_err(e57)?;
+        for (k, s) in scans.iter().enumerate() {
+            let prototype = vec![
+                Record::CARTESIAN_X_F64,
+                Record::CARTESIAN_Y_F64,
+                Record::CARTESIAN_Z_F64,
+            ];
+            let scan_guid = Uuid::new_v5(&guid, format!("scan {k}").as_bytes());
+            let mut scan = writer
+                .add_pointcloud(&scan_guid.braced().to_string(), prototype)
+                .map_err(e57)?;
+            scan.set_name(s.name.map(str::to_owned));
+            if s.pose != Isometry3::identity() {
+                let (q, t) = (s.pose.rotation.quaternion(), s.pose.translation.vector);
+                scan.set_transform(Some(e57::Transform {
+                    rotation: e57::Quaternion {
+                        w: q.w,
+                        x: q.i,
+                        y: q.j,
+                        z: q.k,
+                    },
+                    translation: e57::Translation {
+                        x: t.x,
+                        y: t.y,
+                        z: t.z,
+                    },
+                }));
+            }
+            for p in s.points {
+                scan.add_point(vec![
+                    RecordValue::Double(p.x),
+                    RecordValue::Double(p.y),
+                    RecordValue::Double(p.z),
+                ])
+                .map_err(e57)?;
+            }
+            scan.finalize().map_err(e57)?;
         }
-        scan.finalize().map_err(e57)?;
         writer.finalize().map_err(e57)?;
     }
     Ok(bytes.into_inner())
 }
 
-/// The file's GUID: a name-based (SHA-1) UUID of the points' bits, so that writing is repeatable.
-fn guid_of(points: &[Point3<f64>]) -> Uuid {
-    let bits: Vec<u8> = points
+/// The file's GUID: a name-based (SHA-1) UUID of the scans' points and poses, so that writing
+/// is repeatable.
+fn guid_of(scans: &[E57ScanRef<'_>]) -> Uuid {
+    let bits: Vec<u8> = scans
         .iter()
-        .flat_map(|p| p.coords.iter().flat_map(|v| v.to_le_bytes()))
+        .flat_map(|s| {
+            let pose = s.pose.to_homogeneous();
+            let points = s.points.iter().flat_map(|p| p.coords.iter().copied());
+            pose.iter().copied().chain(points).collect::<Vec<f64>>()
+        })
+        .flat_map(f64::to_le_bytes)
         .collect();
     Uuid::new_v5(&Uuid::NAMESPACE_OID, &bits)
 }
@@ -310,6 +357,52 @@ mod tests {
         assert_eq!(encode(Path::new("b.e57"), &points).unwrap(), bytes);
         let moved: Vec<_> = points.iter().map(|p| p + nalgebra::Vector3::x()).collect();
         assert_ne!(encode(Path::new("a.e57"), &moved).unwrap(), bytes);
+    }
+
+    #[test]
+    fn scans_written_with_names_and_poses_read_back_apart() {
+        let points: Vec<Vec<Point3<f64>>> = (0..3)
+            .map(|k| {
+                (0..200)
+                    .map(|i| {
+                        Point3::new(
+                            f64::from(i) * 0.01,
+                            f64::from(k),
+                            (f64::from(i) * 0.3).sin(),
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
+        let poses = [
+            Isometry3::identity(),
+            Isometry3::new(
+                nalgebra::Vector3::new(3.0, -1.0, 0.2),
+                nalgebra::Vector3::new(0.1, 0.4, -2.0),
+            ),
+            Isometry3::new(
+                nalgebra::Vector3::new(-7.5, 0.0, 1.0),
+                nalgebra::Vector3::new(0.0, 0.0, 3.0),
+            ),
+        ];
+        let names = [Some("first"), None, Some("third")];
+        let scans: Vec<E57ScanRef<'_>> = (0..3)
+            .map(|k| E57ScanRef {
+                name: names[k],
+                pose: poses[k],
+                points: &points[k],
+            })
+            .collect();
+        let bytes = encode_scans(Path::new("a.e57"), &scans).unwrap();
+        let back = read_scans(Path::new("a.e57"), Cursor::new(&bytes)).unwrap();
+        assert_eq!(back.len(), 3);
+        for (k, scan) in back.iter().enumerate() {
+            assert_eq!(scan.name.as_deref(), names[k]);
+            assert_eq!(scan.points, points[k]);
+            let off = (scan.pose.to_homogeneous() - poses[k].to_homogeneous()).amax();
+            assert!(off < 1e-14, "scan {k}: pose {off} off");
+        }
+        assert_eq!(encode_scans(Path::new("b.e57"), &scans).unwrap(), bytes);
     }
 
     #[test]

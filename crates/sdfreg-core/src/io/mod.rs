@@ -13,7 +13,7 @@ mod pcd;
 mod ply;
 mod xyz;
 
-pub use e57::E57Scan;
+pub use e57::{E57Scan, E57ScanRef};
 pub use ply::MeshData;
 
 use std::path::Path;
@@ -269,6 +269,18 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
         Format::E57 => e57::encode(path, points)?,
         Format::Xyz => xyz::encode(points, xyz::is_pts(path)),
     };
+    std::fs::write(path, bytes).map_err(|source| IoError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Writes scans as the scans of one E57 file, each with its name, its pose (into the file's
+/// frame) and its points in its own frame as 64-bit floats: what [`read_e57_scans`] reads back,
+/// to the bit. Overwrites an existing file: callers decide whether that is wanted.
+pub fn write_e57_scans(path: impl AsRef<Path>, scans: &[E57ScanRef<'_>]) -> Result<(), IoError> {
+    let path = path.as_ref();
+    let bytes = e57::encode_scans(path, scans)?;
     std::fs::write(path, bytes).map_err(|source| IoError::Io {
         path: path.to_path_buf(),
         source,

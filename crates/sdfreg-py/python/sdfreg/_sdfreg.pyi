@@ -56,6 +56,7 @@ __all__ = [
     "read_poses",
     "register",
     "register_many",
+    "write_e57_scans",
     "write_point_cloud",
 ]
 
@@ -1201,6 +1202,32 @@ def read_e57_scans(
     Raises:
         OSError: the file cannot be read, is not an E57 file, fails a page's checksum, has no
             point in any scan, or a NaN coordinate (naming the file and the scan).
+    """
+
+def write_e57_scans(
+    path: _PathLike,
+    scans: Iterable[Tuple[Optional[str], npt.ArrayLike, npt.ArrayLike]],
+) -> None:
+    """Writes scans as the scans of one E57 file, each with its name, its pose and its points in
+    its own frame as float64: what :func:`read_e57_scans` reads back, to the bit. An existing file
+    is replaced. With :func:`align`, a campaign registered anew::
+
+        scans = sdfreg.read_e57_scans("campaign.e57")
+        aligned = sdfreg.align([points for _, _, points in scans])
+        sdfreg.write_e57_scans("registered.e57", [
+            (name, pose, points)
+            for (name, _, points), pose in zip(scans, aligned.poses) if pose is not None
+        ])
+
+    Args:
+        path: The ``.e57`` file to write.
+        scans: ``(name, pose, points)`` per scan: ``name`` a str or ``None``, ``pose`` a (4, 4)
+            rigid transform from the scan's frame into the file's, ``points`` (N, 3) finite.
+
+    Raises:
+        ValueError: a scan is not such a triple, its pose is not rigid or a point is not finite
+            (naming the scan).
+        OSError: the file cannot be written.
     """
 
 def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
