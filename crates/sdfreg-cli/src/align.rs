@@ -233,37 +233,47 @@ struct View {
 
 /// The scans in `path`: its cloud, or each scan of an E57 file that holds more than one, in
 /// its own frame (the file's poses are not used: they are what the alignment finds), each
-/// with its points or why it cannot be read.
+/// with its points or why it cannot be read. An E57 file of one scan is that scan placed by its
+/// pose, as `read_point_cloud` reads it.
 fn read_views(
     path: &Path,
     input: &crate::args::InputArgs,
     seed: u64,
 ) -> Vec<(View, Result<Vec<Point3<f64>>>)> {
-    let whole = |points| {
-        let label = path.display().to_string();
-        let view = View {
-            file: path.into(),
-            in_file: None,
-            label,
-        };
-        vec![(view, points)]
+    let view = |in_file, label: String| View {
+        file: path.into(),
+        in_file,
+        label,
     };
+    let whole = |points| vec![(view(None, path.display().to_string()), points)];
     if !matches!(Format::of(path), Ok(Format::E57)) {
         return whole(crate::read_cloud(path, input, seed));
     }
     let scans = match read_e57_scans(path, input.drop_non_finite) {
-        Ok((scans, _)) if scans.len() < 2 => return whole(crate::read_cloud(path, input, seed)),
         Ok((scans, dropped)) => {
             if dropped > 0 {
+                let kept: usize = scans.iter().map(|s| s.points.len()).sum();
                 eprintln!(
-                    "sdfreg: {}: dropped {dropped} points with a NaN or infinite coordinate",
-                    path.display()
+                    "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+                    path.display(),
+                    kept + dropped
                 );
             }
             scans
         }
         Err(e) => return whole(Err(e.into())),
     };
+    // The messages `read_cloud` gives about a cloud's missing and stray returns.
+    let said = |label: &str, points: Vec<Point3<f64>>| {
+        for message in LeftOut::of(&points).messages(points.len()) {
+            eprintln!("sdfreg: {label}: {message}");
+        }
+        points
+    };
+    if let [scan] = scans.as_slice() {
+        let placed = scan.points.iter().map(|p| scan.pose * p).collect();
+        return whole(Ok(said(&path.display().to_string(), placed)));
+    }
     scans
         .into_iter()
         .enumerate()
@@ -272,17 +282,9 @@ fn read_views(
             let points = if scan.points.is_empty() {
                 Err(anyhow::anyhow!("scan {k} has no points"))
             } else {
-                for message in LeftOut::of(&scan.points).messages(scan.points.len()) {
-                    eprintln!("sdfreg: {label}: {message}");
-                }
-                Ok(scan.points)
+                Ok(said(&label, scan.points))
             };
-            let view = View {
-                file: path.into(),
-                in_file: Some((k, scan.name)),
-                label,
-            };
-            (view, points)
+            (view(Some((k, scan.name)), label), points)
         })
         .collect()
 }

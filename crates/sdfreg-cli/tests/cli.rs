@@ -1263,6 +1263,44 @@ fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
         let off = (scan.pose.to_homogeneous() - truth[k].to_homogeneous()).amax();
         assert!(off < 0.01, "scan {k}: {off}");
     }
+    // An E57 file of one scan is that scan placed by its pose, as every command reads it: the
+    // anchor's frame is the placed one, so --aligned writes its points placed.
+    let placing = Isometry3::from_parts(
+        Translation3::new(2.0, 0.0, -1.0),
+        UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.5, 0.0)),
+    );
+    let first = &back[0];
+    let one = sdfreg_core::io::E57ScanRef {
+        name: None,
+        pose: placing,
+        points: &first.points,
+    };
+    sdfreg_core::io::write_e57_scans(dir.path().join("one.e57"), &[one]).unwrap();
+    let placed = dir.path().join("placed.ply");
+    let out = sdfreg()
+        .arg("align")
+        .arg(dir.path().join("one.e57"))
+        .arg(dir.path().join("view_1.ply"))
+        .args(QUICK)
+        .arg("-o")
+        .arg(dir.path().join("one.json"))
+        .arg("--aligned")
+        .arg(&placed)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let placed = sdfreg_core::io::read_point_cloud(&placed).unwrap();
+    let off = first
+        .points
+        .iter()
+        .zip(&placed)
+        .map(|(p, q)| (placing * p - q).norm())
+        .fold(0.0, f64::max);
+    assert!(off < 1e-12, "the one scan {off} off its placed points");
 }
 
 #[test]

@@ -8,7 +8,8 @@
 //! Colour, intensity, row and column are skipped. Every 1,020-byte page is checked against its
 //! CRC-32C before it is used, so a damaged file is refused rather than read to wrong points.
 //!
-//! Written files hold one scan of 64-bit float `x`, `y`, `z` with the identity pose.
+//! Written: a cloud as one scan with the identity pose, or scans each with its name and pose;
+//! points as 64-bit float `x`, `y`, `z`, read back to the bit.
 
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -169,7 +170,10 @@ pub(super) fn encode_scans(path: &Path, scans: &[E57ScanRef<'_>]) -> Result<Vec<
                 .map_err(e57)?;
             scan.set_name(s.name.map(str::to_owned));
             if s.pose != Isometry3::identity() {
-                let (q, t) = (s.pose.rotation.quaternion(), s.pose.translation.vector);
+                // E57 keeps the quaternion's scalar part non-negative (q and −q turn alike).
+                let q = s.pose.rotation.quaternion();
+                let q = if q.w < 0.0 { -q } else { *q };
+                let t = s.pose.translation.vector;
                 scan.set_transform(Some(e57::Transform {
                     rotation: e57::Quaternion {
                         w: q.w,
@@ -199,19 +203,18 @@ pub(super) fn encode_scans(path: &Path, scans: &[E57ScanRef<'_>]) -> Result<Vec<
     Ok(bytes.into_inner())
 }
 
-/// The file's GUID: a name-based (SHA-1) UUID of the scans' points and poses, so that writing
-/// is repeatable.
+/// The file's GUID: a name-based UUID of the SHA-1 of the scans' poses and points (streamed,
+/// not copied), so that writing is repeatable.
 fn guid_of(scans: &[E57ScanRef<'_>]) -> Uuid {
-    let bits: Vec<u8> = scans
-        .iter()
-        .flat_map(|s| {
-            let pose = s.pose.to_homogeneous();
-            let points = s.points.iter().flat_map(|p| p.coords.iter().copied());
-            pose.iter().copied().chain(points).collect::<Vec<f64>>()
-        })
-        .flat_map(f64::to_le_bytes)
-        .collect();
-    Uuid::new_v5(&Uuid::NAMESPACE_OID, &bits)
+    let mut sha = sha1_smol::Sha1::new();
+    for s in scans {
+        let pose = s.pose.to_homogeneous();
+        let points = s.points.iter().flat_map(|p| p.coords.iter());
+        for v in pose.iter().chain(points) {
+            sha.update(&v.to_le_bytes());
+        }
+    }
+    Uuid::new_v5(&Uuid::NAMESPACE_OID, &sha.digest().bytes())
 }
 
 #[cfg(test)]
@@ -380,9 +383,10 @@ mod tests {
                 nalgebra::Vector3::new(3.0, -1.0, 0.2),
                 nalgebra::Vector3::new(0.1, 0.4, -2.0),
             ),
-            Isometry3::new(
-                nalgebra::Vector3::new(-7.5, 0.0, 1.0),
-                nalgebra::Vector3::new(0.0, 0.0, 3.0),
+            // A quaternion with a negative scalar part: written as its opposite.
+            Isometry3::from_parts(
+                Translation3::new(-7.5, 0.0, 1.0),
+                UnitQuaternion::from_quaternion(Quaternion::new(-0.5, 0.5, -0.5, 0.5)),
             ),
         ];
         let names = [Some("first"), None, Some("third")];
@@ -403,6 +407,14 @@ mod tests {
             assert!(off < 1e-14, "scan {k}: pose {off} off");
         }
         assert_eq!(encode_scans(Path::new("b.e57"), &scans).unwrap(), bytes);
+        let file = E57Reader::new(Cursor::new(&bytes)).unwrap();
+        let w: Vec<f64> = file
+            .pointclouds()
+            .iter()
+            .filter_map(|c| c.transform.as_ref())
+            .map(|t| t.rotation.w)
+            .collect();
+        assert!(w.len() == 2 && w.iter().all(|&w| w >= 0.0), "{w:?}");
     }
 
     #[test]
