@@ -287,9 +287,11 @@ fn read_e57_scans(
         .detach(|| sdfreg_core::io::read_e57_scans(&path, drop_non_finite))
         .map_err(error::io)?;
     if dropped > 0 {
+        let kept: usize = scans.iter().map(|s| s.points.len()).sum();
         let message = format!(
-            "{}: dropped {dropped} points with a NaN or infinite coordinate",
-            path.display()
+            "{}: dropped {dropped} of {} points with a NaN or infinite coordinate",
+            path.display(),
+            kept + dropped
         );
         error::warn(py, message)?;
     }
@@ -329,7 +331,9 @@ fn read_e57_scans(
 #[pyfunction]
 fn write_e57_scans(py: Python<'_>, path: PathBuf, scans: &Bound<'_, PyAny>) -> PyResult<()> {
     let mut owned = Vec::new();
-    for (k, scan) in scans.try_iter()?.enumerate() {
+    let not_triples =
+        || error::argument("scans", "not an iterable of (name, pose, points) triples");
+    for (k, scan) in scans.try_iter().map_err(|_| not_triples())?.enumerate() {
         let scan = scan?;
         let name = format!("scans[{k}]");
         let triple = || error::argument(&name, "not a (name, pose, points) triple");

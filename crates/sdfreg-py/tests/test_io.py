@@ -87,6 +87,8 @@ def test_e57_scans_written_with_names_and_poses_read_back(tmp_path: Path) -> Non
         sdfreg.write_e57_scans(tmp_path / "d.e57", [scans[0], ("x", squashed, scans[1][2])])
     with pytest.raises(ValueError, match=r"scans\[0\].*\(name, pose, points\) triple"):
         sdfreg.write_e57_scans(tmp_path / "d.e57", [scans[0][2]])
+    with pytest.raises(ValueError, match=r"scans: not an iterable"):
+        sdfreg.write_e57_scans(tmp_path / "d.e57", 3)  # type: ignore[arg-type]
     assert not (tmp_path / "d.e57").exists()
 
 
