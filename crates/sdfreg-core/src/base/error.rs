@@ -258,3 +258,15 @@ pub enum IoError {
         index: usize,
     },
 }
+
+impl IoError {
+    /// A file whose contents do not follow its format, where no line applies: `message` (what
+    /// was found and what was expected) about `path`.
+    pub(crate) fn parse(path: &std::path::Path, message: impl Into<String>) -> Self {
+        IoError::Parse {
+            path: path.to_path_buf(),
+            line: None,
+            message: message.into(),
+        }
+    }
+}

@@ -39,15 +39,6 @@ pub(super) const PAGE_BYTES: usize = 1024;
 /// The bytes every E57 file begins with.
 const SIGNATURE: &[u8; 8] = b"ASTM-E57";
 
-/// A damaged or foreign file's error: `message` about `path`.
-fn damaged(path: &Path, message: String) -> IoError {
-    IoError::Parse {
-        path: path.into(),
-        line: None,
-        message,
-    }
-}
-
 /// Reads every scan of an E57 file into the file's frame, as one cloud.
 pub(super) fn read(path: &Path, stream: impl Read + Seek) -> Result<Vec<Point3<f64>>, IoError> {
     let mut points = Vec::new();
@@ -71,7 +62,7 @@ pub(super) fn read_scans(
     let mut first = [0u8; 8];
     let got = stream.read(&mut first).map_err(io)?;
     if &first[..got] != SIGNATURE {
-        return Err(damaged(
+        return Err(IoError::parse(
             path,
             format!(
                 "not an E57 file: it begins with {:?}, where E57 files begin with \"ASTM-E57\"",
@@ -80,12 +71,12 @@ pub(super) fn read_scans(
         ));
     }
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
-    let e57 = |e: e57::Error| damaged(path, e.to_string());
+    let e57 = |e: e57::Error| IoError::parse(path, e.to_string());
     let mut file = E57Reader::new(stream).map_err(e57)?;
     let mut scans = Vec::new();
     for (k, cloud) in file.pointclouds().iter().enumerate() {
         let pose = pose(cloud).ok_or_else(|| {
-            damaged(
+            IoError::parse(
                 path,
                 format!("scan {k}'s pose has a zero or non-finite rotation quaternion"),
             )
@@ -153,7 +144,7 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
 /// its pose (the quaternion and translation as E57 stores them). The file's and the scans'
 /// GUIDs are drawn from the points and poses, so the same scans write the same bytes.
 pub(super) fn encode_scans(path: &Path, scans: &[E57ScanRef<'_>]) -> Result<Vec<u8>, IoError> {
-    let e57 = |e: e57::Error| damaged(path, format!("writing E57: {e}"));
+    let e57 = |e: e57::Error| IoError::parse(path, format!("writing E57: {e}"));
     let guid = guid_of(scans);
     let mut bytes = Cursor::new(Vec::new());
     {

@@ -36,16 +36,7 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
         ),
         e => format!("{what}: {e}"),
     };
-    damaged(path, message)
-}
-
-/// A damaged file's error: `message` about `path`.
-fn damaged(path: &Path, message: String) -> IoError {
-    IoError::Parse {
-        path: path.into(),
-        line: None,
-        message,
-    }
+    IoError::parse(path, message)
 }
 
 /// Checks what las-rs and its LASzip decoder would size a buffer by, or index with, against the
@@ -67,7 +58,7 @@ fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError
             stream.read_exact(&mut length).map_err(io)?;
             let declared = u64::from_le_bytes(length);
             if declared > len {
-                return Err(damaged(
+                return Err(IoError::parse(
                     path,
                     format!(
                         "the extended record at byte {} declares {declared} bytes; the file has {len}",
@@ -119,7 +110,7 @@ fn check_laz(
         .map_err(|e| las_error(path, "the LASzip record", e))?;
     let record = u64::from(header.point_format().len());
     if vlr.items_size() != record {
-        return Err(damaged(
+        return Err(IoError::parse(
             path,
             format!(
                 "the LASzip record describes points of {} bytes, the header's point format {record}",
@@ -153,7 +144,7 @@ fn check_laz(
         let at = table_at as u64;
         let mut head = [0u8; 8];
         if at.saturating_add(8) > len {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!("the LASzip chunk table is said to begin at byte {at}; the file has {len}"),
             ));
@@ -164,7 +155,7 @@ fn check_laz(
         // quarter as many chunks as the file has bytes.
         let count = u64::from(u32::from_le_bytes([head[4], head[5], head[6], head[7]]));
         if count > len / 4 {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!("the LASzip chunk table declares {count} chunks in a file of {len} bytes"),
             ));
@@ -177,7 +168,7 @@ fn check_laz(
             .iter()
             .fold(0u64, |s, e| s.saturating_add(e.byte_count));
         if bytes > at - data {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!(
                     "the LASzip chunk table declares {bytes} bytes of chunks; {} lie before it",
@@ -191,7 +182,7 @@ fn check_laz(
                 .iter()
                 .fold(0u64, |s, e| s.saturating_add(e.point_count));
             if covered < points {
-                return Err(damaged(
+                return Err(IoError::parse(
                     path,
                     format!(
                         "the LASzip chunk table holds {covered} points; the header declares {points}"
@@ -201,9 +192,9 @@ fn check_laz(
         }
         Some(table)
     } else if variable {
-        return Err(damaged(
+        return Err(IoError::parse(
             path,
-            "the LASzip chunks vary in size, and the file has no chunk table".into(),
+            "the LASzip chunks vary in size, and the file has no chunk table",
         ));
     } else {
         None
@@ -233,7 +224,7 @@ fn check_laz(
         };
         let head = record + 4 + 4 * layers;
         if at.saturating_add(head) > len {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!("the file ends inside LASzip chunk {chunk}, at byte {at}"),
             ));
@@ -246,7 +237,7 @@ fn check_laz(
             .map(|b| u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
             .sum();
         if body > len - at - head {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!(
                     "LASzip chunk {chunk} at byte {at} declares {body} bytes of layers; {} follow",
@@ -287,7 +278,7 @@ pub(super) fn read(
             )
         })?;
         if chunk.is_empty() {
-            return Err(damaged(
+            return Err(IoError::parse(
                 path,
                 format!("the file ends after {from} of the {declared} points the header declares"),
             ));

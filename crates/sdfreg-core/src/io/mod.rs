@@ -119,11 +119,8 @@ pub fn read_e57_scans(
         } else if let Err(IoError::NonFinite { index, .. }) =
             refuse_non_finite(path, &scan.points, None)
         {
-            return Err(IoError::Parse {
-                path: path.to_path_buf(),
-                line: None,
-                message: format!("scan {k}: point {index} has a non-finite coordinate"),
-            });
+            let message = format!("scan {k}: point {index} has a non-finite coordinate");
+            return Err(IoError::parse(path, message));
         }
     }
     if scans.iter().all(|s| s.points.is_empty()) {
@@ -140,11 +137,8 @@ pub fn read_e57_scans(
 pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
     let path = path.as_ref();
     if Format::of(path)? != Format::Ply {
-        return Err(IoError::Parse {
-            path: path.to_path_buf(),
-            line: None,
-            message: "meshes are read from PLY files (a `face` element)".into(),
-        });
+        let message = "meshes are read from PLY files (a `face` element)";
+        return Err(IoError::parse(path, message));
     }
     let file = std::fs::File::open(path).map_err(|source| IoError::Io {
         path: path.to_path_buf(),
@@ -163,11 +157,7 @@ pub fn read_mesh_surface(
 ) -> Result<Vec<Point3<f64>>, IoError> {
     use rand::SeedableRng;
     let path = path.as_ref();
-    let parse = |message: &str| IoError::Parse {
-        path: path.to_path_buf(),
-        line: None,
-        message: message.into(),
-    };
+    let parse = |message: &str| IoError::parse(path, message);
     let (vertices, triangles) = read_mesh(path)?;
     if triangles.is_empty() {
         return Err(parse("no faces to sample (a point cloud, not a mesh)"));

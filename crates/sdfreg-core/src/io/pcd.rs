@@ -133,11 +133,7 @@ pub(super) fn read(
     mut reader: impl BufRead,
     available: u64,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    let parse = |message: String| IoError::Parse {
-        path: path.into(),
-        line: None,
-        message,
-    };
+    let parse = |message: String| IoError::parse(path, message);
     let head = reader.fill_buf().map_err(|source| IoError::Io {
         path: path.into(),
         source,

@@ -19,11 +19,8 @@ pub(super) fn read(
     bytes: &[u8],
     keep_non_finite: bool,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    let text = std::str::from_utf8(bytes).map_err(|e| IoError::Parse {
-        path: path.into(),
-        line: None,
-        message: format!("not UTF-8 text (byte {})", e.valid_up_to()),
-    })?;
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| IoError::parse(path, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
     let pts = is_pts(path);
     let mut points = Vec::new();
     let mut seen_data_line = false;
