@@ -5,7 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nalgebra::{Isometry3, Point3};
-use sdfreg_core::geometry::cloud::LeftOut;
 use sdfreg_core::io::{
     read_e57_scans, write_e57_scans, write_mesh, write_point_cloud, E57ScanRef, Format,
 };
@@ -251,28 +250,16 @@ fn read_views(
     }
     let scans = match read_e57_scans(path, input.drop_non_finite) {
         Ok((scans, dropped)) => {
-            if dropped > 0 {
-                let kept: usize = scans.iter().map(|s| s.points.len()).sum();
-                eprintln!(
-                    "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
-                    path.display(),
-                    kept + dropped
-                );
-            }
+            let kept: usize = scans.iter().map(|s| s.points.len()).sum();
+            crate::say_dropped(&path.display().to_string(), dropped, kept + dropped);
             scans
         }
         Err(e) => return whole(Err(e.into())),
     };
-    // The messages `read_cloud` gives about a cloud's missing and stray returns.
-    let said = |label: &str, points: Vec<Point3<f64>>| {
-        for message in LeftOut::of(&points).messages(points.len()) {
-            eprintln!("sdfreg: {label}: {message}");
-        }
-        points
-    };
     if let [scan] = scans.as_slice() {
-        let placed = scan.points.iter().map(|p| scan.pose * p).collect();
-        return whole(Ok(said(&path.display().to_string(), placed)));
+        let placed: Vec<Point3<f64>> = scan.points.iter().map(|p| scan.pose * p).collect();
+        crate::say_left_out(&path.display().to_string(), &placed);
+        return whole(Ok(placed));
     }
     scans
         .into_iter()
@@ -282,7 +269,8 @@ fn read_views(
             let points = if scan.points.is_empty() {
                 Err(anyhow::anyhow!("scan {k} has no points"))
             } else {
-                Ok(said(&label, scan.points))
+                crate::say_left_out(&label, &scan.points);
+                Ok(scan.points)
             };
             (view(Some((k, scan.name)), label), points)
         })

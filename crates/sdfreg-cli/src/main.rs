@@ -211,22 +211,31 @@ fn read_cloud(path: &Path, input: &InputArgs, seed: u64) -> Result<Vec<Point3<f6
     }
     let points = if input.drop_non_finite {
         let (points, dropped) = read_point_cloud_dropping_non_finite(path)?;
-        if dropped > 0 {
-            eprintln!(
-                "sdfreg: {}: dropped {dropped} of {} points with a NaN or infinite coordinate",
-                path.display(),
-                points.len() + dropped
-            );
-        }
+        say_dropped(&path.display().to_string(), dropped, points.len() + dropped);
         points
     } else {
         read_point_cloud(path)?
     };
-    let left_out = sdfreg_core::geometry::cloud::LeftOut::of(&points);
-    for message in left_out.messages(points.len()) {
-        eprintln!("sdfreg: {}: {message}", path.display());
-    }
+    say_left_out(&path.display().to_string(), &points);
     Ok(points)
+}
+
+/// Says on stderr how many of `name`'s `total` points `--drop-non-finite` dropped, if any.
+fn say_dropped(name: &str, dropped: usize, total: usize) {
+    if dropped > 0 {
+        eprintln!(
+            "sdfreg: {name}: dropped {dropped} of {total} points with a NaN or infinite coordinate"
+        );
+    }
+}
+
+/// Says on stderr which of `name`'s points the registration will leave out (a scanner's
+/// missing returns at the origin, stray returns far off).
+fn say_left_out(name: &str, points: &[Point3<f64>]) {
+    let left_out = sdfreg_core::geometry::cloud::LeftOut::of(points);
+    for message in left_out.messages(points.len()) {
+        eprintln!("sdfreg: {name}: {message}");
+    }
 }
 
 /// A mesh's vertices and triangles (indices into the vertices).

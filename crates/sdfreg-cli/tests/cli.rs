@@ -1155,56 +1155,30 @@ fn blob_views(dir: &Path, n: usize) -> Vec<Isometry3<f64>> {
 
 #[test]
 fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
-    use e57::{Quaternion, Record, RecordValue, Transform, Translation};
     let dir = tempfile::tempdir().unwrap();
     let truth = blob_views(dir.path(), 3);
     // The three views as the scans of one E57 file, as a scanner's software exports a campaign:
     // each with a name and a pose (here a wrong one: the alignment does not use it), then a scan
-    // whose every point has no coordinates.
+    // without points.
     let path = dir.path().join("campaign.e57");
-    let mut writer = e57::E57Writer::from_file(&path, "{campaign}").unwrap();
-    let prototype = || {
-        vec![
-            Record::CARTESIAN_X_F64,
-            Record::CARTESIAN_Y_F64,
-            Record::CARTESIAN_Z_F64,
-            Record::CARTESIAN_INVALID_STATE,
-        ]
-    };
-    for k in 0..4 {
-        let mut scan = writer
-            .add_pointcloud(&format!("{{scan-{k}}}"), prototype())
-            .unwrap();
-        scan.set_name(Some(format!("station {k}")));
-        scan.set_transform(Some(Transform {
-            rotation: Quaternion {
-                w: 0.6,
-                x: 0.8,
-                y: 0.0,
-                z: 0.0,
-            },
-            translation: Translation {
-                x: 5.0 * k as f64,
-                y: 1.0,
-                z: 0.0,
-            },
-        }));
-        let points = match k {
-            3 => vec![Point3::origin(); 10],
-            _ => {
-                sdfreg_core::io::read_point_cloud(dir.path().join(format!("view_{k}.ply"))).unwrap()
-            }
-        };
-        for p in points {
-            let state = i64::from(k == 3) * 2;
-            let v = |x: f64| RecordValue::Double(x);
-            scan.add_point(vec![v(p.x), v(p.y), v(p.z), RecordValue::Integer(state)])
-                .unwrap();
-        }
-        scan.finalize().unwrap();
-    }
-    writer.finalize().unwrap();
-    drop(writer);
+    let views: Vec<Vec<Point3<f64>>> = (0..3)
+        .map(|k| {
+            let view = dir.path().join(format!("view_{k}.ply"));
+            sdfreg_core::io::read_point_cloud(view).unwrap()
+        })
+        .collect();
+    let names: Vec<String> = (0..4).map(|k| format!("station {k}")).collect();
+    let scans: Vec<sdfreg_core::io::E57ScanRef<'_>> = (0..4)
+        .map(|k| sdfreg_core::io::E57ScanRef {
+            name: Some(&names[k]),
+            pose: Isometry3::from_parts(
+                Translation3::new(5.0 * k as f64, 1.0, 0.0),
+                UnitQuaternion::from_scaled_axis(Vector3::new(1.85, 0.0, 0.0)),
+            ),
+            points: views.get(k).map_or(&[], Vec::as_slice),
+        })
+        .collect();
+    sdfreg_core::io::write_e57_scans(&path, &scans).unwrap();
     let (poses, aligned) = (
         dir.path().join("poses.json"),
         dir.path().join("aligned.e57"),
@@ -1232,19 +1206,18 @@ fn align_takes_each_scan_of_an_e57_file_as_a_view_in_its_own_frame() {
     let v: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
     let scans = v["scans"].as_array().unwrap();
-    assert_eq!(scans.len(), 4);
+    let placed = sdfreg_core::views::poses_file::load_poses(&poses).unwrap();
+    assert_eq!((scans.len(), placed.len()), (4, 4));
     for (k, t) in truth.iter().enumerate() {
         assert_eq!(scans[k]["file"], path.display().to_string());
         assert_eq!(
             (scans[k]["scan"].as_u64(), scans[k]["name"].as_str()),
             (Some(k as u64), Some(format!("station {k}").as_str()))
         );
-        let rows: Vec<Vec<f64>> =
-            serde_json::from_value(scans[k]["transformation"].clone()).unwrap();
-        let m = Matrix4::from_fn(|r, c| rows[r][c]);
+        let m = placed[k].unwrap().to_homogeneous();
         assert!((m - t.to_homogeneous()).amax() < 0.01, "scan {k}: {m}");
     }
-    assert!(scans[3]["transformation"].is_null() && scans[3]["scan"] == 3);
+    assert!(placed[3].is_none() && scans[3]["scan"] == 3);
     let edge = &v["edges"][0];
     let named = format!("{}#", path.display());
     assert!(

@@ -249,15 +249,26 @@ fn read_point_cloud(
             }
         })
         .map_err(error::io)?;
-    if dropped > 0 {
-        let message = format!(
-            "{}: dropped {dropped} of {} points with a NaN or infinite coordinate",
-            path.display(),
-            points.len() + dropped
-        );
-        error::warn(py, message)?;
-    }
+    warn_dropped(py, &path, dropped, points.len() + dropped)?;
     Ok(convert::points_to_array(py, &points))
+}
+
+/// A `UserWarning` saying how many of `path`'s `total` points were dropped as non-finite, if
+/// any.
+fn warn_dropped(
+    py: Python<'_>,
+    path: &std::path::Path,
+    dropped: usize,
+    total: usize,
+) -> PyResult<()> {
+    if dropped == 0 {
+        return Ok(());
+    }
+    let message = format!(
+        "{}: dropped {dropped} of {total} points with a NaN or infinite coordinate",
+        path.display()
+    );
+    error::warn(py, message)
 }
 
 // The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
@@ -286,15 +297,8 @@ fn read_e57_scans(
     let (scans, dropped) = py
         .detach(|| sdfreg_core::io::read_e57_scans(&path, drop_non_finite))
         .map_err(error::io)?;
-    if dropped > 0 {
-        let kept: usize = scans.iter().map(|s| s.points.len()).sum();
-        let message = format!(
-            "{}: dropped {dropped} of {} points with a NaN or infinite coordinate",
-            path.display(),
-            kept + dropped
-        );
-        error::warn(py, message)?;
-    }
+    let kept: usize = scans.iter().map(|s| s.points.len()).sum();
+    warn_dropped(py, &path, dropped, kept + dropped)?;
     Ok(scans
         .into_iter()
         .map(|s| {

@@ -26,3 +26,10 @@ pub(crate) fn refuse_non_finite(
         None => Ok(()),
     }
 }
+
+/// Drops the points with a NaN or infinite coordinate; returns how many.
+pub(crate) fn drop_non_finite(points: &mut Vec<Point3<f64>>) -> usize {
+    let before = points.len();
+    points.retain(|p| p.coords.iter().all(|v| v.is_finite()));
+    before - points.len()
+}

@@ -21,7 +21,7 @@ use std::path::Path;
 use nalgebra::Point3;
 
 pub use crate::base::error::IoError;
-use finite::refuse_non_finite;
+use finite::{drop_non_finite, refuse_non_finite};
 
 /// File formats known by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,8 +80,7 @@ pub fn read_point_cloud_dropping_non_finite(
 ) -> Result<(Vec<Point3<f64>>, usize), IoError> {
     let path = path.as_ref();
     let mut points = read_any(path, true)?;
-    let before = points.len();
-    points.retain(|p| p.coords.iter().all(|v| v.is_finite()));
+    let dropped = drop_non_finite(&mut points);
     if points.is_empty() {
         return Err(IoError::NonFinite {
             path: path.to_path_buf(),
@@ -89,33 +88,26 @@ pub fn read_point_cloud_dropping_non_finite(
             index: 0,
         });
     }
-    let dropped = before - points.len();
     Ok((points, dropped))
 }
 
 /// Reads each scan of an E57 file apart: its name, its pose (into the file's frame) and its
 /// points in its own frame ([`read_point_cloud`] gives them all in the file's frame instead).
 /// A point with a NaN or infinite coordinate is refused, naming its scan, or with
-/// `drop_non_finite` dropped and counted (the second value). Refuses a file with no point in
+/// `drop_non_finite_points` dropped and counted (the second value). Refuses a file with no point in
 /// any scan.
 pub fn read_e57_scans(
     path: impl AsRef<Path>,
-    drop_non_finite: bool,
+    drop_non_finite_points: bool,
 ) -> Result<(Vec<E57Scan>, usize), IoError> {
     let path = path.as_ref();
-    let file = std::fs::File::open(path).map_err(|source| IoError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let (file, _) = open(path)?;
     let reader = std::io::BufReader::with_capacity(e57::PAGE_BYTES, file);
     let mut scans = e57::read_scans(path, reader)?;
     let mut dropped = 0;
     for (k, scan) in scans.iter_mut().enumerate() {
-        if drop_non_finite {
-            let before = scan.points.len();
-            scan.points
-                .retain(|p| p.coords.iter().all(|v| v.is_finite()));
-            dropped += before - scan.points.len();
+        if drop_non_finite_points {
+            dropped += drop_non_finite(&mut scan.points);
         } else if let Err(IoError::NonFinite { index, .. }) =
             refuse_non_finite(path, &scan.points, None)
         {
@@ -184,6 +176,21 @@ pub fn parse_point_cloud(
 /// coordinate with its line number unless `keep_non_finite`.
 fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoError> {
     let format = Format::of(path)?;
+    let (file, available) = open(path)?;
+    // Streamed: a large binary file is never held in memory twice. The E57 reader seeks to
+    // each page it reads, which empties a buffer: it reads them through one of a page.
+    let capacity = if format == Format::E57 {
+        e57::PAGE_BYTES
+    } else {
+        1 << 20
+    };
+    let reader = std::io::BufReader::with_capacity(capacity, file);
+    parse(format, path, reader, available, keep_non_finite)
+}
+
+/// Opens a cloud file; refuses a directory and an empty file. Returns it and its length
+/// (`u64::MAX` when the system does not say).
+fn open(path: &Path) -> Result<(std::fs::File, u64), IoError> {
     let file = std::fs::File::open(path).map_err(|source| IoError::Io {
         path: path.to_path_buf(),
         source,
@@ -204,15 +211,7 @@ fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoEr
             path: path.to_path_buf(),
         });
     }
-    // Streamed: a large binary file is never held in memory twice. The E57 reader seeks to
-    // each page it reads, which empties a buffer: it reads them through one of a page.
-    let capacity = if format == Format::E57 {
-        e57::PAGE_BYTES
-    } else {
-        1 << 20
-    };
-    let reader = std::io::BufReader::with_capacity(capacity, file);
-    parse(format, path, reader, available, keep_non_finite)
+    Ok((file, available))
 }
 
 fn parse(
