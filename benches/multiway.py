@@ -14,7 +14,10 @@ Errors are each scan's pose against `gt_scan_to_world.txt`, relative to the firs
 `--shuffle` runs the scans in a seeded random order (the anchor stays bun000); `--foreign`
 replaces bun315 (`--foreign SCAN`: that scan) by a ModelNet chair scaled to the bunny's size
 (it must be left out). `--seen-from +z` gives `sdfreg.align` where the Stanford scanner stood in
-each scan's frame (far along +z), for its free-space check.
+each scan's frame (far along +z), for its free-space check. `--turned SEED` gives every scan
+but the anchor a frame of its own, as a scanner's stations have: turned about a random axis by
+a random angle up to 180° and moved 0.3 m (two bunny sizes), seeded; errors are measured in the
+scans' own frames, as without it.
 Then, with no reference, how well each answer lays every placed scan on the others (the
 share of its points within 0.5, 1 and 2 mm of another placed scan's, and their RMS distance,
 as `Alignment.evaluate` measures it), beside the same figures of the reference's poses.
@@ -36,6 +39,15 @@ from realscans import read_gt_scans
 
 SCANS = ["bun000", "bun045", "bun090", "bun180", "bun270", "bun315", "chin", "ear_back",
          "top2", "top3"]
+
+
+def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The 4×4 rotation by `angle` (radians) about `axis` (Rodrigues)."""
+    a = axis / np.linalg.norm(axis)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    out = np.eye(4)
+    out[:3, :3] = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * k @ k
+    return out
 
 
 def open3d_multiway(scans: list[np.ndarray]) -> list[np.ndarray]:
@@ -112,6 +124,8 @@ def main() -> None:
     parser.add_argument("--seen-from", default=None, metavar="VIEW",
                         help="sdfreg.align's free-space check: the scans were seen from VIEW "
                         "(the Stanford scans: +z)")
+    parser.add_argument("--turned", type=int, default=None, metavar="SEED",
+                        help="every scan but the anchor turned by up to 180° and moved 0.3 m")
     args = parser.parse_args()
     folder = args.data / "stanford" / "bunny" / "data"
     if not folder.is_dir():
@@ -132,6 +146,14 @@ def main() -> None:
         names[k] = "chair (foreign)"
         scans[k] = (chair - chair.mean(0)) * 0.15
     truth = {n: np.linalg.inv(gt[names[0]]) @ gt[n] for n in names if n in gt}
+    frames = [np.eye(4) for _ in scans]  # each scan's own frame, from its file's
+    if args.turned is not None:
+        rng = np.random.default_rng(args.turned)
+        for k in range(1, len(scans)):
+            axis, away = rng.normal(size=3), rng.normal(size=3)
+            frames[k] = rotation_about(axis, rng.uniform(0.0, np.pi))
+            frames[k][:3, 3] = 0.3 * away / np.linalg.norm(away)
+        scans = [s @ f[:3, :3].T + f[:3, 3] for s, f in zip(scans, frames)]
     runs = {}
     start = time.perf_counter()
     a = sdfreg.align(scans, seen_from=args.seen_from)
@@ -157,7 +179,8 @@ def main() -> None:
             if name not in truth:
                 cells.append("placed (foreign!)")
                 continue
-            rot, trans = pose_errors(poses[k], truth[name])
+            # A pose maps the scan as given (turned); the truth maps the file's scan.
+            rot, trans = pose_errors(poses[k] @ frames[k], truth[name])
             worst[m] = [max(worst[m][0], rot), max(worst[m][1], trans)]
             cells.append(f"{rot:.3f}° / {trans * 1e3:.3f} mm")
         print(f"| {name} | " + " | ".join(cells) + " |")
@@ -165,7 +188,8 @@ def main() -> None:
     print("| time | " + " | ".join(f"{t:.1f} s" for _, t in runs.values()) + " |")
     # No reference: each answer's scans on each other, and the reference's (its scans only).
     answers = {m: poses for m, (poses, _) in runs.items()}
-    answers["reference"] = [truth.get(n) for n in names]
+    answers["reference"] = [truth[n] @ np.linalg.inv(f) if n in truth else None
+                            for n, f in zip(names, frames)]
     print("\nEach placed scan on the others (mean share within d / lowest / mean RMS of those):")
     print("| d | " + " | ".join(answers) + " |")
     print("|---|" + "---|" * len(answers))

@@ -14,9 +14,11 @@
 //! 3. **graph** — candidate edges (fitness ≥ [`AlignSettings::min_fitness`]; of a pair
 //!    registered both ways, the way of higher fitness); a scan with several candidate edges that
 //!    no cycle through a third scan confirms is kept only when two of its edges put it at the
-//!    same pose, with the edges that agree (a scan of something else is left out); the spanning
-//!    tree of the highest fitness gives the starting poses; an edge outside it is kept only when
-//!    it agrees with the tree ([`AlignSettings::consistent_rotation_deg`],
+//!    same pose, with the edges that agree (a scan of something else is left out); a spanning
+//!    tree gives the starting poses (Kruskal by fitness, two groups of scans joined at the
+//!    placement that the most fitness among the edges between them agrees on); an edge
+//!    outside it is kept only when it agrees with the tree
+//!    ([`AlignSettings::consistent_rotation_deg`],
 //!    [`AlignSettings::consistent_translation`]); Gauss–Newton on the kept edges
 //!    ([`crate::views::graph`]). A scan left unplaced is registered against one model of its
 //!    placed partners, and the graph made again with that pose as one more measurement of where
@@ -1189,8 +1191,15 @@ fn placed_twice(
     })
 }
 
-/// The maximum spanning tree of `usable` by fitness (Kruskal), the poses along it from the
-/// `anchor`, and the edges kept: the tree's, and those that agree with it.
+/// The spanning tree of `usable` (Kruskal by fitness, each join voted on), the poses along it
+/// from the `anchor`, and the edges kept: the tree's, and those that agree with it.
+///
+/// Two groups of scans are joined where the edges between them agree: of the placements of one
+/// group in the other's frame that those edges give, the one whose agreeing edges sum the
+/// highest fitness, through its edge of highest fitness. With scans in frames of their own, a
+/// partial view is sometimes registered the wrong way round with a higher fitness than any of
+/// its right edges (views turned 180° on the bunny: a pair's fitness does not tell), but the
+/// wrong edges between two groups rarely agree with each other, and the right ones do.
 #[allow(clippy::type_complexity)]
 fn tree_and_check(
     edges: &[Edge],
@@ -1201,24 +1210,58 @@ fn tree_and_check(
 ) -> (Vec<Option<Isometry3<f64>>>, Vec<usize>) {
     let mut order = usable.to_vec();
     order.sort_by(|&a, &b| edges[b].fitness().total_cmp(&edges[a].fitness()));
-    let mut component: Vec<usize> = (0..n).collect();
-    fn root(c: &mut [usize], mut k: usize) -> usize {
-        while c[k] != k {
-            c[k] = c[c[k]];
-            k = c[k];
-        }
-        k
-    }
+    // Each scan's group and its pose in the group's first scan's frame.
+    let mut group: Vec<usize> = (0..n).collect();
+    let mut within: Vec<Isometry3<f64>> = vec![Isometry3::identity(); n];
+    // Where edge `e` puts the group of its source in the frame of its target's group.
+    let placement = |e: usize, within: &[Isometry3<f64>]| {
+        let (i, j) = (edges[e].target, edges[e].source);
+        within[i] * measured(&edges[e]) * within[j].inverse()
+    };
     let mut tree = Vec::new();
-    for e in order {
-        let (a, b) = (
-            root(&mut component, edges[e].target),
-            root(&mut component, edges[e].source),
-        );
-        if a != b {
-            component[a] = b;
-            tree.push(e);
+    for (x, &e) in order.iter().enumerate() {
+        let (a, b) = (group[edges[e].target], group[edges[e].source]);
+        if a == b {
+            continue;
         }
+        // Every remaining edge between the two groups, as a placement of b in a's frame; the
+        // edges that agree with a placement vote for it with their fitness.
+        let between: Vec<(usize, Isometry3<f64>)> = order[x..]
+            .iter()
+            .filter_map(|&f| {
+                let (gi, gj) = (group[edges[f].target], group[edges[f].source]);
+                let p = placement(f, &within);
+                match (gi, gj) {
+                    _ if (gi, gj) == (a, b) => Some((f, p)),
+                    _ if (gi, gj) == (b, a) => Some((f, p.inverse())),
+                    _ => None,
+                }
+            })
+            .collect();
+        let support = |p: &Isometry3<f64>| -> f64 {
+            between
+                .iter()
+                .filter(|(_, q)| agree(&(p.inverse() * q)))
+                .map(|&(f, _)| edges[f].fitness())
+                .sum()
+        };
+        // The first of the edges (by fitness) whose placement has the most support.
+        let (chosen, p) = between
+            .iter()
+            .map(|&(f, p)| (f, p, support(&p)))
+            .fold(None::<(usize, Isometry3<f64>, f64)>, |best, c| match best {
+                Some(b) if b.2 >= c.2 => Some(b),
+                _ => Some(c),
+            })
+            .map(|(f, p, _)| (f, p))
+            .expect("e is between the groups");
+        for k in 0..n {
+            if group[k] == b {
+                group[k] = a;
+                within[k] = p * within[k];
+            }
+        }
+        tree.push(chosen);
     }
     let mut poses: Vec<Option<Isometry3<f64>>> = vec![None; n];
     poses[anchor] = Some(Isometry3::identity());
@@ -1532,6 +1575,41 @@ mod tests {
         assert_eq!(
             unplaced_reversed(&edges, &poses, &[]),
             Some(vec![(5, 0), (5, 1)])
+        );
+    }
+
+    #[test]
+    fn two_groups_are_joined_where_most_of_their_edges_agree_not_by_their_best_edge() {
+        // Two triangles of right edges, 0-1-2 and 3-4-5; between them one wrong edge of the
+        // highest fitness (a view registered the wrong way round) and three right ones of
+        // lower fitness that agree with each other.
+        let t = Synthetic::new();
+        let (right, edge) = (|i, j| t.right(i, j), |i, j, z, f| t.edge(i, j, z, f));
+        let mut edges: Vec<Edge> = [(0, 1), (0, 2), (1, 2), (3, 4), (3, 5), (4, 5)]
+            .map(|(i, j)| edge(i, j, right(i, j), 0.95))
+            .into();
+        edges.extend([
+            edge(2, 4, right(2, 4) * off(2.8), 0.9),
+            edge(0, 3, right(0, 3), 0.6),
+            edge(1, 3, right(1, 3), 0.5),
+            edge(2, 5, right(2, 5), 0.5),
+        ]);
+        let scans = vec![t.blob.clone(); 6];
+        let poses = pose_graph(
+            &scans,
+            &mut edges,
+            None,
+            &[None; 6],
+            &AlignSettings::default(),
+        );
+        for (k, pose) in poses.iter().enumerate() {
+            let (rot, trans) = pose_errors(&pose.expect("placed"), &right(0, k));
+            assert!(rot < 1e-4 && trans < 1e-6, "scan {k}: {rot}° {trans}");
+        }
+        assert!(!edges[6].kept, "the wrong edge was kept");
+        assert!(
+            edges[7..].iter().all(|e| e.kept),
+            "a right edge was not kept"
         );
     }
 

@@ -733,7 +733,8 @@ def align(
     scans, else each scan with its next 3 in order, wrapping round, then at most
     ``closure_pairs`` more per scan between placed scans that overlap far apart along the
     graph); the registrations that fit (fitness ≥ 0.3), that a cycle through a third scan
-    confirms and that agree with the spanning tree of the best ones form a pose graph, solved
+    confirms and that agree with a spanning tree (groups of scans joined where most of the
+    fitness of the edges between them agrees) form a pose graph, solved
     by robust Gauss–Newton on SE(3); then each scan is registered against one model of all
     the others (``joint_rounds`` times, none by default). No initial guesses are needed.
 
