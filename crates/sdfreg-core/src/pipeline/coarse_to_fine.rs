@@ -7,7 +7,8 @@
 //! ([`crate::LocalSettings::refine_steps`] for a scene's local Φ), and each hypothesis
 //! takes [`CoarseToFineSettings::lm_steps_per_alternation`] LM steps
 //! ([`CoarseToFineSettings::scene_lm_steps_per_alternation`] in a scene's full call). Halfway,
-//! hypotheses that fit clearly worse than the best are dropped; at the end the best-fitting one
+//! hypotheses that fit clearly worse than the best are dropped (each judged where one more
+//! alternation at its last one's gain would take it); at the end the best-fitting one
 //! is kept (near-ties to the least rotation). Then LM on the frozen Φ until converged
 //! ([`final_lm`]).
 //!
@@ -158,7 +159,19 @@ pub(crate) fn alternate<S: Surface>(
     let (alternations, lm_steps, _) = c.counts(refine && fit.is_local());
     let (tie, tau2) = (s.multistart.tie, s.multistart.truncation.powi(2));
     let mut lms: Vec<(usize, Lm)> = hypotheses.into_iter().enumerate().collect();
+    let half = alternations / 2;
+    let score_all = |fit: &S, lms: &[(usize, Lm)]| -> Vec<f64> {
+        lms.iter()
+            .map(|(_, lm)| solver_score(fit.tree(), source, lm, tau2))
+            .collect()
+    };
+    // The scores one alternation before the halfway drop, to tell a hypothesis still closing
+    // in from one that has settled.
+    let mut before_half = Vec::new();
     for k in 0..alternations {
+        if k + 1 == half && lms.len() > 1 {
+            before_half = score_all(fit, &lms);
+        }
         let kappa = policy.kappa(k, alternations);
         // One evaluation of Φ at the moved source serves the kernel's scale and the gate.
         let mut kernels = Vec::with_capacity(lms.len());
@@ -192,17 +205,19 @@ pub(crate) fn alternate<S: Surface>(
             lm.run(fit.phi(), source, kernel, lm_steps);
         }
         progress(Stage::Alternation(k + 1, alternations));
-        // Halfway, hypotheses that fit clearly worse than the best are dropped.
-        if k + 1 == alternations / 2 && lms.len() > 1 {
-            let scores: Vec<f64> = lms
-                .iter()
-                .map(|(_, lm)| solver_score(fit.tree(), source, lm, tau2))
-                .collect();
+        // Halfway, hypotheses that fit clearly worse than the best are dropped: a hypothesis
+        // is judged by where one more alternation at its last one's gain would take it, so
+        // that one still closing in on the right pose (slowly, under a robust kernel's small
+        // scale) is not dropped for a settled wrong one.
+        if k + 1 == half && lms.len() > 1 {
+            let scores = score_all(fit, &lms);
             let best = scores.iter().copied().fold(f64::INFINITY, f64::min);
             lms = lms
                 .into_iter()
-                .zip(scores)
-                .filter(|(_, score)| *score <= best * (1.0 + tie))
+                .zip(scores.iter().zip(&before_half))
+                .filter(|(_, (&score, &before))| {
+                    score - (before - score).max(0.0) <= best * (1.0 + tie)
+                })
                 .map(|(lm, _)| lm)
                 .collect();
         }
