@@ -1130,27 +1130,12 @@ fn register_with_scale_finds_millimetres_against_metres_and_writes_the_scaled_so
 fn blob_views(dir: &Path, n: usize) -> Vec<Isometry3<f64>> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
     let shape = sdfreg_core::sim::shapes::blob(6000, &mut rng);
-    let mut poses = Vec::new();
-    for k in 0..n {
-        let a = std::f64::consts::TAU * k as f64 / n as f64;
-        let d = Vector3::new(a.cos(), a.sin(), 0.3);
-        let mut dots: Vec<f64> = shape.iter().map(|p| p.coords.dot(&d)).collect();
-        dots.sort_by(f64::total_cmp);
-        let cut = dots[dots.len() * 3 / 10];
-        let pose = Isometry3::from_parts(
-            Translation3::new(0.1 * k as f64, -0.2, 0.05 * k as f64),
-            UnitQuaternion::from_scaled_axis(Vector3::new(0.2, -0.1 * k as f64, 0.3)),
-        );
-        let view: Vec<Point3<f64>> = shape
-            .iter()
-            .filter(|p| p.coords.dot(&d) > cut)
-            .map(|p| pose.inverse() * p)
-            .collect();
-        write_xyz(&dir.join(format!("view_{k}.ply")), &view);
-        poses.push(pose);
+    let views = sdfreg_core::sim::shapes::partial_views(&shape, n);
+    for (k, (view, _)) in views.iter().enumerate() {
+        write_xyz(&dir.join(format!("view_{k}.ply")), view);
     }
-    let first = poses[0].inverse();
-    poses.iter().map(|p| first * p).collect()
+    let first = views[0].1.inverse();
+    views.iter().map(|(_, pose)| first * pose).collect()
 }
 
 #[test]

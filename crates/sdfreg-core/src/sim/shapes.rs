@@ -1,6 +1,6 @@
 //! Procedural test shapes (no data files needed): used by the demo, the tests and the benches.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 
@@ -33,6 +33,32 @@ fn blob_point(d: &Vector3<f64>) -> Point3<f64> {
         + 0.2 * d.z * d.z * d.z
         + 0.15 * d.x * d.y;
     Point3::from(d.component_mul(&Vector3::new(0.55, 0.4, 0.3)) * r)
+}
+
+/// `n` partial views of `shape` (its points centred near the origin), as a scan campaign gives
+/// them: the k-th keeps the 70 % of the points farthest along the direction at k/n of a turn
+/// about z (tilted up by 0.3), and lies in a frame of its own. Returns each view's points in its
+/// frame and its pose: the map from the view's frame into `shape`'s.
+pub fn partial_views(shape: &[Point3<f64>], n: usize) -> Vec<(Vec<Point3<f64>>, Isometry3<f64>)> {
+    (0..n)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / n as f64;
+            let d = Vector3::new(a.cos(), a.sin(), 0.3);
+            let mut dots: Vec<f64> = shape.iter().map(|p| p.coords.dot(&d)).collect();
+            dots.sort_by(f64::total_cmp);
+            let cut = dots[dots.len() * 3 / 10];
+            let pose = Isometry3::from_parts(
+                Translation3::new(0.1 * k as f64, -0.2, 0.05 * k as f64),
+                UnitQuaternion::from_scaled_axis(Vector3::new(0.2, -0.1 * k as f64, 0.3)),
+            );
+            let view = shape
+                .iter()
+                .filter(|p| p.coords.dot(&d) > cut)
+                .map(|p| pose.inverse() * p)
+                .collect();
+            (view, pose)
+        })
+        .collect()
 }
 
 /// The [`blob`]'s surface as a closed triangle mesh, outward normals by the right-hand rule:
