@@ -26,6 +26,15 @@ def euler_xyz(deg: np.ndarray) -> np.ndarray:
     return rx @ ry @ rz
 
 
+def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The 4×4 rotation by `angle` (radians) about `axis` (any non-zero length; Rodrigues)."""
+    a = axis / np.linalg.norm(axis)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    out = np.eye(4)
+    out[:3, :3] = np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * k @ k
+    return out
+
+
 def nearest_rotation(m: np.ndarray) -> np.ndarray:
     """The rotation nearest a 3×3 block (Frobenius norm; the SVD's U·Vᵀ with det +1).
 

@@ -34,20 +34,11 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
-from common import pose_errors
+from common import pose_errors, rotation_about
 from realscans import read_gt_scans
 
 SCANS = ["bun000", "bun045", "bun090", "bun180", "bun270", "bun315", "chin", "ear_back",
          "top2", "top3"]
-
-
-def rotation_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    """The 4×4 rotation by `angle` (radians) about `axis` (Rodrigues)."""
-    a = axis / np.linalg.norm(axis)
-    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    out = np.eye(4)
-    out[:3, :3] = np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * k @ k
-    return out
 
 
 def open3d_multiway(scans: list[np.ndarray]) -> list[np.ndarray]:

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
-from common import pose_errors
+from common import pose_errors, rotation_about
 
 
 BUNNY_PAIRS = [
@@ -157,11 +157,7 @@ def reference_worth(match: Path, row: dict) -> None:
 
 def random_motion(rng: np.random.Generator, max_deg: float, max_t: float) -> np.ndarray:
     axis = rng.normal(size=3)
-    axis /= np.linalg.norm(axis)
-    th = math.radians(rng.uniform(0, max_deg))
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    t = np.eye(4)
-    t[:3, :3] = np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * k @ k
+    t = rotation_about(axis, math.radians(rng.uniform(0, max_deg)))
     d = rng.normal(size=3)
     t[:3, 3] = d / np.linalg.norm(d) * rng.uniform(0, max_t)
     return t

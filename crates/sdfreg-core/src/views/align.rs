@@ -1229,12 +1229,13 @@ fn tree_and_check(
         let between: Vec<(usize, Isometry3<f64>)> = order[x..]
             .iter()
             .filter_map(|&f| {
-                let (gi, gj) = (group[edges[f].target], group[edges[f].source]);
-                let p = placement(f, &within);
-                match (gi, gj) {
-                    _ if (gi, gj) == (a, b) => Some((f, p)),
-                    _ if (gi, gj) == (b, a) => Some((f, p.inverse())),
-                    _ => None,
+                let ends = (group[edges[f].target], group[edges[f].source]);
+                if ends == (a, b) {
+                    Some((f, placement(f, &within)))
+                } else if ends == (b, a) {
+                    Some((f, placement(f, &within).inverse()))
+                } else {
+                    None
                 }
             })
             .collect();
