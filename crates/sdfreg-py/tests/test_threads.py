@@ -73,3 +73,30 @@ def test_forked_child_registers_after_the_parent(pair) -> None:
     np.testing.assert_array_equal(parent_end.recv(), in_parent)
     assert child.exitcode == 0
 
+
+
+def read_in_child(conn, path) -> None:
+    conn.send(sdfreg.read_point_cloud(path))
+    conn.close()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="fork is the Linux default to test")
+def test_forked_child_reads_a_laz_file_after_the_parent(tmp_path) -> None:
+    # 120,000 points: three LASzip chunks, decoded (and compressed) on several threads.
+    rng = np.random.default_rng(7)
+    path = tmp_path / "cloud.laz"
+    sdfreg.write_point_cloud(path, rng.uniform(-50.0, 50.0, (120_000, 3)))
+    in_parent = sdfreg.read_point_cloud(path)
+    ctx = multiprocessing.get_context("fork")
+    parent_end, child_end = ctx.Pipe()
+    child = ctx.Process(target=read_in_child, args=(child_end, path))
+    child.start()
+    ok = parent_end.poll(120)
+    # Received before the child is joined: it sends more than a pipe holds.
+    in_child = parent_end.recv() if ok else None
+    child.join(10 if ok else 0)
+    if child.is_alive():
+        child.kill()
+    assert ok, "the forked child did not finish reading (deadlock?)"
+    np.testing.assert_array_equal(in_child, in_parent)
+    assert child.exitcode == 0

@@ -49,6 +49,20 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
     Ok(pool.install(f))
 }
 
+/// Runs `f(true)` where the rayon tasks it starts stay off rayon's global pool: in the pool the
+/// caller is already in (whose size the caller chose), else in the calling thread's pool of one
+/// worker per core. When that pool cannot be made (the system refuses threads), `f(false)` on
+/// the calling thread, for `f` to do its work without rayon.
+pub(crate) fn in_a_pool<R: Send>(f: impl FnOnce(bool) -> R + Send) -> R {
+    if rayon::current_thread_index().is_some() {
+        return f(true);
+    }
+    match pool(0) {
+        Ok(pool) => pool.install(|| f(true)),
+        Err(_) => f(false),
+    }
+}
+
 /// The calling thread's pool of `threads` workers, made when first asked for.
 fn pool(threads: usize) -> Result<Arc<ThreadPool>, Error> {
     let process = std::process::id();
@@ -89,5 +103,29 @@ mod tests {
         assert!(Arc::ptr_eq(&here, &pool(3).unwrap()));
         let there = std::thread::spawn(|| pool(3).unwrap()).join().unwrap();
         assert!(!Arc::ptr_eq(&here, &there));
+    }
+
+    #[test]
+    fn work_asked_for_in_a_pool_stays_in_the_callers_or_gets_the_threads_own() {
+        // From a plain thread: that thread's pool of one worker per core.
+        let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let plain = std::thread::spawn(|| {
+            let own = pool(0).unwrap();
+            in_a_pool(|parallel| {
+                let index = rayon::current_thread_index();
+                (
+                    parallel,
+                    index.is_some(),
+                    rayon::current_num_threads(),
+                    own.current_thread_index() == index,
+                )
+            })
+        })
+        .join()
+        .unwrap();
+        assert_eq!(plain, (true, true, cores, true));
+        // From inside a pool: that pool, whatever its size.
+        let inside = in_pool(1, || in_a_pool(|_| rayon::current_num_threads())).unwrap();
+        assert_eq!(inside, 1);
     }
 }

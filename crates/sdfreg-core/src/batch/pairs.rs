@@ -19,6 +19,7 @@ use std::sync::Mutex;
 use nalgebra::{Isometry3, Point3};
 
 use crate::base::error::Error;
+use crate::base::pool::in_pool;
 use crate::model::mesh_model::MeshModel;
 use crate::model::sdf_model::SdfModel;
 use crate::pipeline::register::register;
@@ -176,7 +177,12 @@ where
     std::thread::scope(|scope| {
         for _ in 0..workers {
             scope.spawn(|| {
-                while let Some((key, pair)) = next() {
+                // The next pair is taken (and a caller's iterator may read its files) in the
+                // worker's one-thread pool, the one its registration runs in: a reader that
+                // runs rayon tasks (LAZ decoding) then stays on this worker's thread instead of
+                // making a pool of every core for each worker.
+                let take = || in_pool(1, next).unwrap_or_else(|_| next());
+                while let Some((key, pair)) = take() {
                     done(key, pair.register(&one));
                 }
             });

@@ -5,7 +5,9 @@
 //! LAZ (LASzip-compressed LAS) is read through las-rs's LASzip decoder (the `laz` crate), after
 //! what that decoder sizes buffers by or indexes with is checked against the file: its chunk
 //! table, and each layered chunk's layer sizes. Without those checks damaged copies of a LAZ file
-//! made the decoder panic or abort the process.
+//! made the decoder panic or abort the process. A file whose chunk table holds the header's
+//! points as writers lay them out is decoded on every core, many chunks at a time (the decoder's
+//! parallel form; [`parallel_if_it_holds`]); any other a chunk after the other.
 //!
 //! Written files are LAS 1.2, point format 0, with an offset at the cloud's middle and the
 //! finest power-of-ten scale whose integers fit LAS's 32 bits with room: between 10⁻⁹ and 10⁻⁸
@@ -15,13 +17,31 @@
 use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
 
-use las::{Builder, Point, Transform, Vector};
+use las::{
+    Builder, LazParallelism, Point, PointDataBuilder, ReaderOptions, Transform, Vector,
+    WriterOptions,
+};
 use nalgebra::Point3;
 
 use crate::base::error::IoError;
+use crate::base::pool::in_a_pool;
 
 /// Bytes of points read at a time: a header's point count is not trusted to size an allocation.
 const CHUNK_BYTES: u64 = 4 << 20;
+
+/// Bytes of points read at a time from a LAZ file decoded in parallel: 32 MiB, some 40 LASzip
+/// chunks of 50,000 points in LAS's smaller formats, so that every core has chunks to decode.
+const PARALLEL_CHUNK_BYTES: u64 = 32 << 20;
+
+/// How a LAS stream's points are to be decoded, as [`preflight`] found the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Decoding {
+    /// Uncompressed LAS, or LAZ decoded a chunk after the other.
+    Sequential,
+    /// LAZ whose chunk table holds the header's points ([`parallel_if_it_holds`]): many
+    /// chunks at once, on every core.
+    Parallel,
+}
 
 /// An error of `path` that las-rs reported while reading `what`: the end of the file, a foreign
 /// file's first bytes, or las-rs's own words.
@@ -42,8 +62,9 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
 /// Checks what las-rs and its LASzip decoder would size a buffer by, or index with, against the
 /// file before they read it: a LAS 1.4 extended record (EVLR) declaring more bytes than the file
 /// has (las-rs sizes its buffer by that length) and, in a LAZ file, the chunk table and the
-/// layered chunks' sizes ([`check_laz`]). Leaves `stream` at its start.
-fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError> {
+/// layered chunks' sizes ([`check_laz`]). Leaves `stream` at its start; says how the points
+/// can be decoded.
+fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<Decoding, IoError> {
     let io = |e: std::io::Error| las_error(path, "the LAS header", las::Error::Io(e));
     let len = stream.seek(SeekFrom::End(0)).map_err(io)?;
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
@@ -71,17 +92,19 @@ fn preflight(path: &Path, stream: &mut (impl Read + Seek)) -> Result<(), IoError
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
     let header =
         las::Header::new(&mut *stream).map_err(|e| las_error(path, "the LAS header", e))?;
-    if header.point_format().is_compressed {
+    let decoding = if header.point_format().is_compressed {
         check_laz(
             path,
             stream,
             &header,
             u64::from(raw.offset_to_point_data),
             len,
-        )?;
-    }
+        )?
+    } else {
+        Decoding::Sequential
+    };
     stream.seek(SeekFrom::Start(0)).map_err(io)?;
-    Ok(())
+    Ok(decoding)
 }
 
 /// LASzip's compressor kind (the first two bytes of its record) for one stream of points, not
@@ -90,6 +113,42 @@ const POINTWISE: u16 = 1;
 /// LASzip's compressor kind for layered chunks (a stream per field; LAS 1.4's point formats 6 to
 /// 10). Kind 2, chunks of one stream each, lies between.
 const LAYERED: u16 = 3;
+
+/// The most points in one chunk of a LAZ file decoded in parallel: that decoder decodes the
+/// whole of a read's last chunk, and keeps what the read did not ask for, so a chunk's point
+/// count sizes a buffer. Writers use 50,000 (LASzip's default) or COPC's nodes of up to some
+/// 100,000; a file of larger chunks is decoded a chunk after the other.
+const MAX_PARALLEL_CHUNK: u64 = 1 << 20;
+
+/// [`Decoding::Parallel`] when the chunk `table` holds the header's `points` as a writer lays
+/// them out: its chunks (of `chunk_size` points each, or each entry's own count when
+/// `variable`) cover the points, the last one holds some of them, and none exceeds
+/// [`MAX_PARALLEL_CHUNK`]. The parallel decoder splits every read among the table's chunks by
+/// those counts: a table short of the points makes it run past its last entry, and a damaged
+/// count allocates that many points. The sequential decoder needs no table for fixed chunks.
+fn parallel_if_it_holds(
+    table: &laz::laszip::ChunkTable,
+    chunk_size: u32,
+    variable: bool,
+    points: u64,
+) -> Decoding {
+    let counts: Vec<u64> = if variable {
+        table.as_ref().iter().map(|e| e.point_count).collect()
+    } else {
+        vec![u64::from(chunk_size); table.len()]
+    };
+    let covered = counts.iter().fold(0u64, |s, &c| s.saturating_add(c));
+    let last = counts.last().copied().unwrap_or(0);
+    if points > 0
+        && covered >= points
+        && covered - last < points
+        && counts.iter().all(|&c| c <= MAX_PARALLEL_CHUNK)
+    {
+        Decoding::Parallel
+    } else {
+        Decoding::Sequential
+    }
+}
 
 /// Checks a LAZ file against what its LASzip record and chunk table declare, before the decoder
 /// trusts them: the record describes the header's point size; the chunk table lies inside the
@@ -103,7 +162,7 @@ fn check_laz(
     header: &las::Header,
     data: u64,
     len: u64,
-) -> Result<(), IoError> {
+) -> Result<Decoding, IoError> {
     let io = |e: std::io::Error| las_error(path, "the LASzip chunks", las::Error::Io(e));
     let vlr = header
         .laz_vlr()
@@ -125,7 +184,7 @@ fn check_laz(
         .and_then(|v| v.data.get(..2))
         .map_or(0, |b| u16::from_le_bytes([b[0], b[1]]));
     if kind == POINTWISE {
-        return Ok(());
+        return Ok(Decoding::Sequential);
     }
     let points = header.number_of_points();
     // The chunk table's offset: first in the point data, or (when the writer could not go back)
@@ -199,8 +258,12 @@ fn check_laz(
     } else {
         None
     };
+    let decoding = match &table {
+        Some(t) => parallel_if_it_holds(t, vlr.chunk_size(), variable, points),
+        None => Decoding::Sequential,
+    };
     if kind != LAYERED {
-        return Ok(());
+        return Ok(decoding);
     }
     // A layered chunk: its first point as is, its point count, each layer's size (u32), then
     // the layers. Walked as the decoder reads them, a chunk after the other.
@@ -252,7 +315,7 @@ fn check_laz(
         seen = seen.saturating_add(in_chunk);
         chunk += 1;
     }
-    Ok(())
+    Ok(decoding)
 }
 
 /// The points of a LAS stream; `path` names it in errors. A file whose points stop
@@ -261,11 +324,35 @@ pub(super) fn read(
     path: &Path,
     mut stream: impl Read + Seek + Send + Sync + 'static,
 ) -> Result<Vec<Point3<f64>>, IoError> {
-    preflight(path, &mut stream)?;
-    let mut reader = las::Reader::new(stream).map_err(|e| las_error(path, "the LAS header", e))?;
+    match preflight(path, &mut stream)? {
+        Decoding::Parallel => in_a_pool(|parallel| {
+            if parallel {
+                decode(path, stream, Decoding::Parallel, PARALLEL_CHUNK_BYTES)
+            } else {
+                decode(path, stream, Decoding::Sequential, CHUNK_BYTES)
+            }
+        }),
+        Decoding::Sequential => decode(path, stream, Decoding::Sequential, CHUNK_BYTES),
+    }
+}
+
+/// The points of a LAS stream that [`preflight`] has checked, decoded as it said, `bytes` of
+/// points at a time.
+fn decode(
+    path: &Path,
+    stream: impl Read + Seek + Send + Sync + 'static,
+    decoding: Decoding,
+    bytes: u64,
+) -> Result<Vec<Point3<f64>>, IoError> {
+    let parallelism = match decoding {
+        Decoding::Parallel => LazParallelism::Yes,
+        Decoding::Sequential => LazParallelism::No,
+    };
+    let options = ReaderOptions::default().with_laz_parallelism(parallelism);
+    let mut reader = las::Reader::with_options(stream, options)
+        .map_err(|e| las_error(path, "the LAS header", e))?;
     let declared = reader.header().number_of_points();
-    let chunk_points =
-        (CHUNK_BYTES / u64::from(reader.header().point_format().len()).max(1)).max(1);
+    let chunk_points = (bytes / u64::from(reader.header().point_format().len()).max(1)).max(1);
     let mut points = Vec::with_capacity(declared.min(chunk_points) as usize);
     while (points.len() as u64) < declared {
         let from = points.len() as u64;
@@ -327,18 +414,32 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
     }
     let writing = |e: las::Error| las_error(path, "cannot write LAS", e);
     let header = builder.into_header().map_err(writing)?;
-    let mut writer = las::Writer::new(Cursor::new(Vec::new()), header).map_err(writing)?;
-    for p in points {
-        writer
-            .write_point(Point {
-                x: p.x,
-                y: p.y,
-                z: p.z,
-                ..Default::default()
-            })
-            .map_err(writing)?;
-    }
-    Ok(writer.into_inner().map_err(writing)?.into_inner())
+    let batch = PointDataBuilder::new().for_header(&header);
+    let record = header.point_format().len().max(1) as usize;
+    in_a_pool(|parallel| {
+        let laz = if parallel {
+            LazParallelism::Yes
+        } else {
+            LazParallelism::No
+        };
+        let options = WriterOptions::default().with_laz_parallelism(laz);
+        let mut writer =
+            las::Writer::with_options(Cursor::new(Vec::new()), header, options).map_err(writing)?;
+        // Many points a call, so that a LAZ file's chunks are compressed on every core.
+        for slab in points.chunks(PARALLEL_CHUNK_BYTES as usize / record) {
+            let data = batch
+                .clone()
+                .build_from_points(slab.iter().map(|p| Point {
+                    x: p.x,
+                    y: p.y,
+                    z: p.z,
+                    ..Default::default()
+                }))
+                .map_err(writing)?;
+            writer.write_points(&data).map_err(writing)?;
+        }
+        Ok(writer.into_inner().map_err(writing)?.into_inner())
+    })
 }
 
 #[cfg(test)]
@@ -546,6 +647,93 @@ mod tests {
             read,
             super::read(Path::new("a.las"), Cursor::new(plain)).unwrap()
         );
+    }
+
+    #[test]
+    fn a_laz_file_with_a_chunk_table_is_decoded_in_parallel_to_the_same_bits() {
+        // Reads of 1 MiB end inside the 50,000-point chunks (format 0's 20 bytes: 52,428
+        // points), so each read after the first starts from the rest of a chunk.
+        let n = 120_000;
+        for format in [0, 6] {
+            let fixed = laz(format, n);
+            for bytes in [variable_chunks(&fixed, n as u64), fixed] {
+                let mut stream = Cursor::new(bytes.clone());
+                let decoding = preflight(Path::new("a.laz"), &mut stream).unwrap();
+                assert_eq!(decoding, Decoding::Parallel, "format {format}");
+                let at_once = |decoding, size| {
+                    decode(
+                        Path::new("a.laz"),
+                        Cursor::new(bytes.clone()),
+                        decoding,
+                        size,
+                    )
+                    .unwrap()
+                };
+                let sequential = at_once(Decoding::Sequential, CHUNK_BYTES);
+                assert_eq!(sequential.len(), n);
+                for size in [1 << 20, PARALLEL_CHUNK_BYTES] {
+                    assert!(
+                        at_once(Decoding::Parallel, size) == sequential,
+                        "format {format}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_laz_file_whose_chunk_table_falls_short_of_its_points_is_decoded_a_chunk_at_a_time() {
+        // Fixed chunks of 50,000: a table of two entries covers 100,000 of the 120,000 points.
+        // The parallel decoder splits a read by the table and runs past its last entry (an
+        // error in a release build, a failed assertion in a debug one); the sequential one needs
+        // no table for fixed chunks and reads every point.
+        let n = 120_000;
+        let whole = laz(0, n);
+        let mut bytes = whole.clone();
+        let (_, table) = laz_offsets(&bytes);
+        bytes[table + 4..table + 8].copy_from_slice(&2u32.to_le_bytes());
+        let mut stream = Cursor::new(bytes.clone());
+        assert_eq!(
+            preflight(Path::new("a.laz"), &mut stream).unwrap(),
+            Decoding::Sequential
+        );
+        let short = read(Path::new("a.laz"), Cursor::new(bytes)).unwrap();
+        assert_eq!(short.len(), n);
+        assert!(short == read(Path::new("a.laz"), Cursor::new(whole)).unwrap());
+    }
+
+    #[test]
+    fn only_a_chunk_table_laid_out_as_writers_do_is_decoded_in_parallel() {
+        let table = |counts: &[u64]| {
+            let mut t = laz::laszip::ChunkTable::with_capacity(counts.len());
+            for &point_count in counts {
+                t.push(laz::laszip::ChunkTableEntry {
+                    point_count,
+                    byte_count: 100,
+                });
+            }
+            t
+        };
+        let fixed = |entries: usize, size: u32, points: u64| {
+            parallel_if_it_holds(&table(&vec![0; entries]), size, false, points)
+        };
+        use Decoding::{Parallel, Sequential};
+        // Fixed chunks of 50,000: 120,000 points take three.
+        assert_eq!(fixed(3, 50_000, 120_000), Parallel);
+        assert_eq!(fixed(2, 50_000, 120_000), Sequential, "short of the points");
+        assert_eq!(
+            fixed(4, 50_000, 120_000),
+            Sequential,
+            "a chunk with none of them"
+        );
+        assert_eq!(fixed(1, 1 << 21, 120_000), Sequential, "a chunk too large");
+        assert_eq!(fixed(0, 50_000, 0), Sequential, "no points");
+        // Variable chunks: each entry's own count.
+        let variable =
+            |counts: &[u64], points| parallel_if_it_holds(&table(counts), 0, true, points);
+        assert_eq!(variable(&[40_000, 60_000, 20_000], 120_000), Parallel);
+        assert_eq!(variable(&[40_000, 60_000, 10_000], 120_000), Sequential);
+        assert_eq!(variable(&[40_000, u64::MAX, 1], 120_000), Sequential);
     }
 
     /// `laz`'s point-data offset and where its chunk table begins.

@@ -31,7 +31,8 @@ pub enum Format {
     /// Point Cloud Library PCD: the `x`, `y`, `z` fields (any type).
     Pcd,
     /// ASPRS LAS (`.las`) and LASzip-compressed LAS (`.laz`): each point's scaled `x`, `y`,
-    /// `z`. Written compressed when the path ends in `.laz`.
+    /// `z`. Written compressed when the path ends in `.laz`. LAZ is decoded and compressed
+    /// on the current rayon pool's threads when its chunk table allows.
     Las,
     /// ASTM E57 (`.e57`), as terrestrial laser scanners export: every scan's points placed by
     /// its pose in the file's frame, spherical scans converted, points without coordinates
