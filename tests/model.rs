@@ -203,6 +203,66 @@ fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
 }
 
 #[test]
+fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
+    use sdfreg_core::{register_each_loading, Pair};
+    use std::borrow::Cow;
+    use std::sync::atomic::AtomicBool;
+    use std::sync::{Condvar, Mutex};
+    use std::time::Duration;
+    let s = quick();
+    let target = shapes::blob(600, &mut ChaCha8Rng::seed_from_u64(5));
+    let model = SdfModel::fit(&target, &s).unwrap();
+    let sources: Vec<_> = (0..4)
+        .map(|k| moved(&target, &motion(10.0 * k as f64, [0.05, 0.0, 0.0])))
+        .collect();
+    // The first two loads wait for each other (10 s at most): they meet only when both
+    // workers load at once, not when loads run one at a time inside the lock.
+    let waiting = (Mutex::new(0usize), Condvar::new());
+    let met = Mutex::new(Vec::new());
+    let load = |k: usize| {
+        if k < 2 {
+            let (count, arrived) = &waiting;
+            let mut n = count.lock().unwrap();
+            *n += 1;
+            arrived.notify_all();
+            let (n, timeout) = arrived
+                .wait_timeout_while(n, Duration::from_secs(10), |n| *n < 2)
+                .unwrap();
+            met.lock().unwrap().push(!timeout.timed_out() && *n == 2);
+        }
+        // Item 3 cannot be "read": it is skipped.
+        (k != 3).then(|| {
+            (
+                k,
+                Pair {
+                    source: Cow::Borrowed(sources[k].as_slice()),
+                    ..Pair::against_model(&[], &model)
+                },
+            )
+        })
+    };
+    let results = Mutex::new(Vec::new());
+    let stop = AtomicBool::new(false);
+    register_each_loading(0..4, load, &s, 2, &stop, |k, r| {
+        results
+            .lock()
+            .unwrap()
+            .push((k, r.unwrap().t_target_source));
+    })
+    .unwrap();
+    assert_eq!(*met.lock().unwrap(), [true, true]);
+    let mut results = results.into_inner().unwrap();
+    results.sort_by_key(|(k, _)| *k);
+    let keys: Vec<usize> = results.iter().map(|(k, _)| *k).collect();
+    assert_eq!(keys, [0, 1, 2]);
+    // Each result is the pair registered alone, bit for bit.
+    for (k, transformation) in results {
+        let alone = model.register(&sources[k], None, &s).unwrap();
+        assert_eq!(transformation, alone.t_target_source, "pair {k}");
+    }
+}
+
+#[test]
 fn a_mesh_is_its_own_exact_distance_field_and_registers_without_fitting() {
     use sdfreg_core::MeshModel;
     let s = RegisterSettings::default();

@@ -15,7 +15,9 @@ use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::Isometry3;
 use sdfreg_core::batch::log::{header_line, read_batch_log, BatchLog};
-use sdfreg_core::{register_each, Pair, PairTarget, RegisterSettings, Registration, SdfModel};
+use sdfreg_core::{
+    register_each_loading, Pair, PairTarget, RegisterSettings, Registration, SdfModel,
+};
 
 use crate::args::BatchArgs;
 use crate::output::registration_json;
@@ -93,31 +95,37 @@ pub fn run(a: BatchArgs) -> Result<()> {
         lines: ProgressLines::new(pending.len()),
     });
     let start = Instant::now();
-    // Rows whose files cannot be read are recorded as failed right away; the rest register.
-    let loaded = pending
-        .iter()
-        .filter_map(|&row| match load(row, &models, &a) {
-            Ok(pair) => Some((row, pair)),
-            Err(e) => {
-                lock(&out).record(row, Err(format!("{e:#}")));
-                None
-            }
-        });
-    let stop = AtomicBool::new(false);
-    register_each(loaded, &settings, a.common.threads, &stop, |row, r| {
-        let r = r.map_err(|e| {
-            format!(
-                "{:#}",
-                crate::name_cloud(e.into(), &row.source_path, &row.target_path)
-            )
-        });
-        let mut out = lock(&out);
-        out.record(row, r);
-        if out.error.is_some() {
-            // The output cannot be written: start no more pairs.
-            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    // Each worker reads its row's files (at the same time as the others); rows whose files
+    // cannot be read are recorded as failed right away, the rest register.
+    let read = |row| match load(row, &models, &a) {
+        Ok(pair) => Some((row, pair)),
+        Err(e) => {
+            lock(&out).record(row, Err(format!("{e:#}")));
+            None
         }
-    })?;
+    };
+    let stop = AtomicBool::new(false);
+    register_each_loading(
+        pending,
+        read,
+        &settings,
+        a.common.threads,
+        &stop,
+        |row, r| {
+            let r = r.map_err(|e| {
+                format!(
+                    "{:#}",
+                    crate::name_cloud(e.into(), &row.source_path, &row.target_path)
+                )
+            });
+            let mut out = lock(&out);
+            out.record(row, r);
+            if out.error.is_some() {
+                // The output cannot be written: start no more pairs.
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+        },
+    )?;
     bar.finish_and_clear();
     let out = out.into_inner().unwrap_or_else(|e| e.into_inner());
     if let Some(e) = out.error {

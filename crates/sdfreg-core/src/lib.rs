@@ -33,7 +33,8 @@
 //! - [`register_many`]: many [`Pair`]s (against clouds or models) on every core, one pair per
 //!   worker, results in input order and equal to registering each alone.
 //! - [`register_each`]: the same over any iterator of keyed pairs, pulled lazily, each result
-//!   handed back as it finishes; [`batch::log`]: the results file of `sdfreg batch`, and its reader.
+//!   handed back as it finishes ([`register_each_loading`]: each worker reads its own pair's
+//!   files); [`batch::log`]: the results file of `sdfreg batch`, and its reader.
 //! - [`io`]: reading and writing clouds and meshes (PLY, PCD, LAS/LAZ, XYZ/TXT/CSV/PTS), errors
 //!   naming file and place ([`IoError`]).
 //!
@@ -98,7 +99,7 @@ pub mod solve;
 pub mod views;
 
 pub use base::error::{Error, IoError, Role};
-pub use batch::pairs::{register_each, register_many, Pair, PairTarget};
+pub use batch::pairs::{register_each, register_each_loading, register_many, Pair, PairTarget};
 pub use field::local_grid::{LocalSettings, ModelKind};
 pub use field::mlp::MlpSettings;
 pub use fit::settings::FitSettings;

@@ -49,6 +49,15 @@ pub(crate) fn in_pool<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> 
     Ok(pool.install(f))
 }
 
+/// [`in_pool`], or `f` on the calling thread when that pool cannot be made (the system refuses
+/// threads): for work that does not need the pool, only prefers it.
+pub(crate) fn in_pool_else_here<R: Send>(threads: usize, f: impl FnOnce() -> R + Send) -> R {
+    match pool(threads) {
+        Ok(pool) => pool.install(f),
+        Err(_) => f(),
+    }
+}
+
 /// Runs `f(true)` where the rayon tasks it starts stay off rayon's global pool: in the pool the
 /// caller is already in (whose size the caller chose), else in the calling thread's pool of one
 /// worker per core. When that pool cannot be made (the system refuses threads), `f(false)` on

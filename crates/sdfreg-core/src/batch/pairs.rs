@@ -11,6 +11,8 @@
 //! - [`register_each`]: any iterator of keyed pairs, pulled lazily (a pair's clouds may be read
 //!   only when a worker is free for it, so memory stays flat over thousands of pairs), each
 //!   result handed to a callback as it finishes, with a flag that stops the batch early.
+//! - [`register_each_loading`]: the same over items each worker makes into its pair (reading
+//!   its files) on its own, so that the workers read at the same time.
 
 use std::borrow::Cow;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,7 +21,7 @@ use std::sync::Mutex;
 use nalgebra::{Isometry3, Point3};
 
 use crate::base::error::Error;
-use crate::base::pool::in_pool;
+use crate::base::pool::in_pool_else_here;
 use crate::model::mesh_model::MeshModel;
 use crate::model::sdf_model::SdfModel;
 use crate::pipeline::register::register;
@@ -136,7 +138,8 @@ pub fn register_many(
 /// Registers the keyed pairs `pairs` yields with `settings` on `threads` workers (0 = one per
 /// core), one pair per worker, and calls `done(key, result)` as each finishes (in the order
 /// they finish, from the worker threads). The iterator is pulled only when a worker is free
-/// (by one worker at a time), so it may read each pair's clouds as it is asked for them.
+/// (by one worker at a time), so it may read each pair's clouds as it is asked for them; those
+/// reads then run one at a time, where [`register_each_loading`] reads on every worker at once.
 ///
 /// Once `stop` is set, no further pair is started; the pairs already running finish and are
 /// reported, then the call returns. Each result equals `pair.register(settings)`;
@@ -155,6 +158,32 @@ where
     I::IntoIter: Send,
     D: Fn(K, Result<Registration, Error>) + Sync,
 {
+    register_each_loading(pairs, Some, settings, threads, stop, done)
+}
+
+/// [`register_each`] over `items` that `load` makes into keyed pairs (reads their files, say) on
+/// the worker that takes them, outside the lock that hands the items out: the workers read
+/// their pairs at the same time. Items are still pulled one at a time, when a worker is free.
+/// An item `load` gives no pair for (`None`: it could not be read, and `load` has said so) is
+/// skipped; `done` is called for every pair made. Each result equals `pair.register(settings)`;
+/// `settings.threads` is not read. Fails as a whole only for invalid settings (before any item
+/// is loaded).
+pub fn register_each_loading<'a, T, K, I, L, D>(
+    items: I,
+    load: L,
+    settings: &RegisterSettings,
+    threads: usize,
+    stop: &AtomicBool,
+    done: D,
+) -> Result<(), Error>
+where
+    T: Send,
+    K: Send,
+    I: IntoIterator<Item = T>,
+    I::IntoIter: Send,
+    L: Fn(T) -> Option<(K, Pair<'a>)> + Sync,
+    D: Fn(K, Result<Registration, Error>) + Sync,
+{
     settings.validate()?;
     let one = RegisterSettings {
         threads: 1,
@@ -164,26 +193,26 @@ where
         0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
         n => n,
     };
-    // Plain threads, each taking the next pair when it is free. (Not a rayon pool: a pair's
+    // Plain threads, each taking the next item when it is free. (Not a rayon pool: a pair's
     // registration runs in a pool of its own, and a rayon worker waiting on another pool steals
     // further pairs meanwhile, so more pairs would run at once than there are workers.)
-    let pairs = Mutex::new(pairs.into_iter());
+    let items = Mutex::new(items.into_iter());
     let next = || {
         if stop.load(Ordering::Relaxed) {
             return None;
         }
-        pairs.lock().unwrap_or_else(|e| e.into_inner()).next()
+        items.lock().unwrap_or_else(|e| e.into_inner()).next()
     };
     std::thread::scope(|scope| {
         for _ in 0..workers {
             scope.spawn(|| {
-                // The next pair is taken (and a caller's iterator may read its files) in the
-                // worker's one-thread pool, the one its registration runs in: a reader that
-                // runs rayon tasks (LAZ decoding) then stays on this worker's thread instead of
-                // making a pool of every core for each worker.
-                let take = || in_pool(1, next).unwrap_or_else(|_| next());
-                while let Some((key, pair)) = take() {
-                    done(key, pair.register(&one));
+                while let Some(item) = next() {
+                    // Loaded in the worker's one-thread pool, the one its registration runs
+                    // in: a reader that runs rayon tasks (LAZ decoding) then stays on this
+                    // worker's thread instead of making a pool of every core for each worker.
+                    if let Some((key, pair)) = in_pool_else_here(1, || load(item)) {
+                        done(key, pair.register(&one));
+                    }
                 }
             });
         }

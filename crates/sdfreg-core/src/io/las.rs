@@ -416,7 +416,8 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
     let header = builder.into_header().map_err(writing)?;
     let batch = PointDataBuilder::new().for_header(&header);
     let record = header.point_format().len().max(1) as usize;
-    in_a_pool(|parallel| {
+    let compressed = header.point_format().is_compressed;
+    let write = |parallel: bool| {
         let laz = if parallel {
             LazParallelism::Yes
         } else {
@@ -439,7 +440,13 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
             writer.write_points(&data).map_err(writing)?;
         }
         Ok(writer.into_inner().map_err(writing)?.into_inner())
-    })
+    };
+    // Plain LAS has nothing to compress: no pool is needed to write it.
+    if compressed {
+        in_a_pool(write)
+    } else {
+        write(false)
+    }
 }
 
 #[cfg(test)]
