@@ -1,6 +1,6 @@
 //! Reading clouds: formats, and errors that name the file and the place.
 
-use sdfreg_core::io::{read_point_cloud, write_point_cloud};
+use sdfreg_core::io::{read_mesh, read_point_cloud, write_point_cloud};
 use sdfreg_core::IoError;
 
 #[test]
@@ -25,6 +25,17 @@ fn errors_name_the_file_and_the_problem() {
         )),
         "{err}"
     );
+
+    // A mesh is refused for the same reasons as a cloud, in the same words.
+    let folder = dir.path().join("folder.ply");
+    std::fs::create_dir(&folder).unwrap();
+    let blank = dir.path().join("blank.ply");
+    std::fs::write(&blank, "").unwrap();
+    for path in [&folder, &blank] {
+        let as_mesh = read_mesh(path).unwrap_err().to_string();
+        assert_eq!(as_mesh, read_point_cloud(path).unwrap_err().to_string());
+    }
+    assert!(matches!(read_mesh(&blank), Err(IoError::Empty { .. })));
 
     let nan = dir.path().join("nan.ply");
     write_point_cloud(&nan, &[nalgebra::Point3::new(0.0, f64::NAN, 1.0)]).unwrap();

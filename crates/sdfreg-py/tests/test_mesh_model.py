@@ -81,3 +81,6 @@ def test_bad_meshes_raise_value_errors_and_read_mesh_reads_faces(tmp_path: Path)
     np.testing.assert_array_equal(f, faces)
     with pytest.raises(OSError, match="nope.ply"):
         sdfreg.read_mesh(tmp_path / "nope.ply")
+    (tmp_path / "folder.ply").mkdir()
+    with pytest.raises(IsADirectoryError, match="folder.ply: a directory, not a file"):
+        sdfreg.read_mesh(tmp_path / "folder.ply")

@@ -133,10 +133,7 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<MeshData, IoError> {
         let message = "meshes are read from PLY files (a `face` element)";
         return Err(IoError::parse(path, message));
     }
-    let file = std::fs::File::open(path).map_err(|source| IoError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let (file, _) = open(path)?;
     ply::read_mesh(path, std::io::BufReader::with_capacity(1 << 20, file))
 }
 
@@ -189,7 +186,7 @@ fn read_any(path: &Path, keep_non_finite: bool) -> Result<Vec<Point3<f64>>, IoEr
     parse(format, path, reader, available, keep_non_finite)
 }
 
-/// Opens a cloud file; refuses a directory and an empty file. Returns it and its length
+/// Opens a cloud or mesh file; refuses a directory and an empty file. Returns it and its length
 /// (`u64::MAX` when the system does not say).
 fn open(path: &Path) -> Result<(std::fs::File, u64), IoError> {
     let file = std::fs::File::open(path).map_err(|source| IoError::Io {
