@@ -173,9 +173,14 @@ fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
     let target = shapes::blob(600, &mut ChaCha8Rng::seed_from_u64(5));
     let model = SdfModel::fit(&target, &s).unwrap();
     let pulled = AtomicUsize::new(0);
-    // Each pair's source is made only when a worker asks for it, as a file would be read.
+    let outside_a_pool = AtomicUsize::new(0);
+    // Each pair's source is made only when a worker asks for it, as a file would be read: in
+    // the worker's own pool, so that a reader's rayon tasks stay on that worker.
     let pairs = (0..6).map(|k| {
         pulled.fetch_add(1, Ordering::Relaxed);
+        if rayon::current_thread_index().is_none() {
+            outside_a_pool.fetch_add(1, Ordering::Relaxed);
+        }
         let source = moved(&target, &motion(10.0 * k as f64, [0.05, 0.0, 0.0]));
         (
             format!("pair {k}"),
@@ -197,6 +202,7 @@ fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
     let results = results.into_inner().unwrap();
     // One worker: pairs 0 and 1 ran, then the stop; pair 2 was never made.
     assert_eq!(pulled.load(Ordering::Relaxed), 2);
+    assert_eq!(outside_a_pool.load(Ordering::Relaxed), 0);
     let keys: Vec<&str> = results.iter().map(|(k, _)| k.as_str()).collect();
     assert_eq!(keys, ["pair 0", "pair 1"]);
     assert!(results.iter().all(|(_, fitness)| *fitness > 0.99));
@@ -219,7 +225,12 @@ fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
     // workers load at once, not when loads run one at a time inside the lock.
     let waiting = (Mutex::new(0usize), Condvar::new());
     let met = Mutex::new(Vec::new());
+    let in_a_pool = Mutex::new(Vec::new());
     let load = |k: usize| {
+        in_a_pool
+            .lock()
+            .unwrap()
+            .push(rayon::current_thread_index().is_some());
         if k < 2 {
             let (count, arrived) = &waiting;
             let mut n = count.lock().unwrap();
@@ -251,6 +262,8 @@ fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
     })
     .unwrap();
     assert_eq!(*met.lock().unwrap(), [true, true]);
+    // Loaded in the worker's own pool, as its registration runs.
+    assert_eq!(*in_a_pool.lock().unwrap(), [true; 4]);
     let mut results = results.into_inner().unwrap();
     results.sort_by_key(|(k, _)| *k);
     let keys: Vec<usize> = results.iter().map(|(k, _)| *k).collect();

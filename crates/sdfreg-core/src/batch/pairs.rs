@@ -206,11 +206,12 @@ where
     std::thread::scope(|scope| {
         for _ in 0..workers {
             scope.spawn(|| {
-                while let Some(item) = next() {
-                    // Loaded in the worker's one-thread pool, the one its registration runs
-                    // in: a reader that runs rayon tasks (LAZ decoding) then stays on this
-                    // worker's thread instead of making a pool of every core for each worker.
-                    if let Some((key, pair)) = in_pool_else_here(1, || load(item)) {
+                // The next item is taken and loaded (a caller's iterator or `load` may read
+                // files) in the worker's one-thread pool, the one its registration runs in: a
+                // reader that runs rayon tasks (LAZ decoding) then stays on this worker's
+                // thread instead of making a pool of every core for each worker.
+                while let Some(loaded) = in_pool_else_here(1, || next().map(&load)) {
+                    if let Some((key, pair)) = loaded {
                         done(key, pair.register(&one));
                     }
                 }
