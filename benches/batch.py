@@ -5,6 +5,7 @@
     .venv/bin/python benches/batch.py --data ../shared/data [--pairs 64] [--protocol clean]
     .venv/bin/python benches/batch.py --stress 10000     # 10⁴ rows through `sdfreg batch`
     .venv/bin/python benches/batch.py --laz 4 --data ../shared/data   # large LAZ pairs
+    .venv/bin/python benches/batch.py --models 60 --data ../shared/data   # many stored models
 
 Throughput (the default): the pairs of the paper's protocol (`sdfreg eval --write-pairs` over
 ModelNet40 in --data; procedural blobs with a message when it is missing), registered in one
@@ -30,6 +31,12 @@ on a 3 × 6 grid 200 m apart, each tile turned its own way (about 2.2 million po
 the same points turned 2.9° about z and moved (0.3, -0.2, 0.05) m. Prints the wall time, the CPU time of the
 `sdfreg batch` process (its ratio to the wall time is how many cores were busy) and the worst
 errors. Two builds are compared by running this with SDFREG_CLI set to each.
+
+--models N: 2N rows through `sdfreg batch`, against N stored models (each its own file, a copy
+of the model of one frame of `lidar/kitti00_frames`), each model named by two rows in turn; the
+sources are the frames turned 1.5° about z and moved (0.2, -0.1, 0.05) m. Prints the wall time,
+CPU time, peak RSS and worst errors, as --laz does: a batch that keeps every model it has loaded
+grows with N.
 """
 
 from __future__ import annotations
@@ -50,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 import sdfreg
-from common import blob, euler_xyz, pose_errors
+from common import blob, euler_xyz, pose_errors, rotation_about
 
 ROOT = Path(__file__).resolve().parents[1]
 CLI = Path(os.environ.get("SDFREG_CLI", ROOT / "target/release/sdfreg"))
@@ -220,16 +227,46 @@ def stress(n: int) -> None:
         shutil.rmtree(work)
 
 
-def laz_pairs(data: Path, n: int) -> None:
+def timed_batch(work: Path, truth: np.ndarray) -> str:
+    """Runs `sdfreg batch` on work/pairs.csv, each row's source being its target moved by
+    `truth`; the wall time, CPU time, peak RSS and worst errors, as a line (exits on a failed row)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    seconds, rss = batch_run(work / "pairs.csv", work / "out.jsonl")
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    inverse = np.linalg.inv(truth)
+    worst = (0.0, 0.0)
+    for line in (work / "out.jsonl").read_text().splitlines()[1:]:
+        record = json.loads(line)
+        if not record["ok"]:
+            sys.exit(f"batch.py: row {record['row']} failed: {record['error']}")
+        # The transformation maps the source into the target: the truth's inverse.
+        errors = pose_errors(np.array(record["transformation"]), inverse)
+        worst = (max(worst[0], errors[0]), max(worst[1], errors[1]))
+    return (f"{seconds:.2f} s, CPU {cpu:.2f} s ({cpu / seconds:.2f} cores busy), peak RSS {rss:.0f} MiB; "
+            f"worst errors {worst[0]:.3f}° / {worst[1] * 1e3:.1f} mm")
+
+
+def kitti_frames(data: Path) -> list[Path]:
+    """The frames of lidar/kitti00_frames in `data` (exits with a message when missing)."""
     frames = sorted((data / "lidar" / "kitti00_frames").glob("*.ply"))
     if not frames:
         sys.exit(f"batch.py: {data}/lidar/kitti00_frames: missing; skipping")
+    return frames
+
+
+def turn_about_z(degrees: float, shift: list[float]) -> np.ndarray:
+    """The 4×4 motion that turns by `degrees` about z, then moves by `shift` (metres)."""
+    motion = rotation_about(np.array([0.0, 0.0, 1.0]), np.radians(degrees))
+    motion[:3, 3] = shift
+    return motion
+
+
+def laz_pairs(data: Path, n: int) -> None:
+    frames = kitti_frames(data)
     work = Path(tempfile.mkdtemp(prefix="sdfreg-batch-laz-"))
     try:
-        turn = np.radians(2.9)
-        truth = np.eye(4)
-        truth[:3, :3] = [[np.cos(turn), -np.sin(turn), 0.0], [np.sin(turn), np.cos(turn), 0.0], [0.0, 0.0, 1.0]]
-        truth[:3, 3] = [0.3, -0.2, 0.05]
+        truth = turn_about_z(2.9, [0.3, -0.2, 0.05])
         rows = []
         scans = [sdfreg.read_point_cloud(f) for f in frames]
         for k in range(n):
@@ -237,8 +274,7 @@ def laz_pairs(data: Path, n: int) -> None:
             for c in range(18):
                 # Each tile another frame, turned its own way, on a 3 × 6 grid about the origin:
                 # no two tiles alike, so no shift between tiles fits as well as the truth.
-                angle = np.radians(37.0 * c + 11.0 * k)
-                turned = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+                turned = turn_about_z(37.0 * c + 11.0 * k, [0.0, 0.0, 0.0])[:3, :3]
                 place = [200.0 * (c % 6 - 2.5), 200.0 * (c // 6 - 1.0), 0.0]
                 tiles.append(scans[(c + k) % len(scans)] @ turned.T + place)
             target = np.concatenate(tiles)
@@ -247,22 +283,30 @@ def laz_pairs(data: Path, n: int) -> None:
             sdfreg.write_point_cloud(work / f"s{k}.laz", source)
             rows.append(f"s{k}.laz,t{k}.laz\n")
         (work / "pairs.csv").write_text("".join(rows))
-        before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        seconds, rss = batch_run(work / "pairs.csv", work / "out.jsonl")
-        after = resource.getrusage(resource.RUSAGE_CHILDREN)
-        cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
-        inverse = np.linalg.inv(truth)
-        worst = (0.0, 0.0)
-        for line in (work / "out.jsonl").read_text().splitlines()[1:]:
-            record = json.loads(line)
-            if not record["ok"]:
-                sys.exit(f"batch.py: row {record['row']} failed: {record['error']}")
-            # The transformation maps the source into the target: the truth's inverse.
-            errors = pose_errors(np.array(record["transformation"]), inverse)
-            worst = (max(worst[0], errors[0]), max(worst[1], errors[1]))
-        print(f"{n} pairs of {len(target)} points in LAZ ({cpu_flags()}): {seconds:.2f} s, "
-              f"CPU {cpu:.2f} s ({cpu / seconds:.2f} cores busy), peak RSS {rss:.0f} MiB; "
-              f"worst errors {worst[0]:.3f}° / {worst[1] * 1e3:.1f} mm")
+        print(f"{n} pairs of {len(target)} points in LAZ ({cpu_flags()}): {timed_batch(work, truth)}")
+    finally:
+        shutil.rmtree(work)
+
+
+def many_models(data: Path, n: int) -> None:
+    frames = kitti_frames(data)
+    work = Path(tempfile.mkdtemp(prefix="sdfreg-batch-models-"))
+    try:
+        truth = turn_about_z(1.5, [0.2, -0.1, 0.05])
+        for j, frame in enumerate(frames):
+            scan = sdfreg.read_point_cloud(frame)
+            sdfreg.write_point_cloud(work / f"s{j}.ply", scan @ truth[:3, :3].T + truth[:3, 3])
+            sdfreg.fit(scan).save(work / f"fitted{j}.sdfm")
+        rows = []
+        for k in range(n):
+            # Each model its own file (a copy of one frame's), named by two rows in turn.
+            j = k % len(frames)
+            shutil.copyfile(work / f"fitted{j}.sdfm", work / f"m{k}.sdfm")
+            rows += [f"s{j}.ply,m{k}.sdfm\n"] * 2
+        (work / "pairs.csv").write_text("".join(rows))
+        model_mib = (work / "m0.sdfm").stat().st_size / 2**20
+        print(f"{2 * n} rows against {n} stored models of {model_mib:.1f} MiB each ({cpu_flags()}): "
+              f"{timed_batch(work, truth)}")
     finally:
         shutil.rmtree(work)
 
@@ -273,6 +317,7 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=64)
     parser.add_argument("--protocol", default="clean")
     parser.add_argument("--stress", type=int, metavar="N")
+    parser.add_argument("--models", type=int, metavar="N")
     parser.add_argument("--laz", type=int, metavar="N")
     args = parser.parse_args()
     if not CLI.exists():
@@ -281,6 +326,8 @@ def main() -> None:
         stress(args.stress)
     elif args.laz:
         laz_pairs(args.data, args.laz)
+    elif args.models:
+        many_models(args.data, args.models)
     else:
         throughput(args)
 

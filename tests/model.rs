@@ -210,14 +210,15 @@ fn a_stream_of_pairs_is_pulled_lazily_and_stops_when_asked() {
 
 #[test]
 fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
-    use sdfreg_core::{register_each_loading, Pair};
+    use sdfreg_core::{register_each_loading, Pair, PairTarget};
     use std::borrow::Cow;
     use std::sync::atomic::AtomicBool;
-    use std::sync::{Condvar, Mutex};
+    use std::sync::{Arc, Condvar, Mutex};
     use std::time::Duration;
     let s = quick();
     let target = shapes::blob(600, &mut ChaCha8Rng::seed_from_u64(5));
     let model = SdfModel::fit(&target, &s).unwrap();
+    let shared = Arc::new(model.clone());
     let sources: Vec<_> = (0..4)
         .map(|k| moved(&target, &motion(10.0 * k as f64, [0.05, 0.0, 0.0])))
         .collect();
@@ -241,13 +242,21 @@ fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
                 .unwrap();
             met.lock().unwrap().push(!timeout.timed_out() && *n == 2);
         }
-        // Item 3 cannot be "read": it is skipped.
+        // Item 3 cannot be "read": it is skipped. Item 1 holds a share of the model, as a
+        // worker that loads the model itself gives it; the others borrow it.
         (k != 3).then(|| {
+            let target = if k == 1 {
+                PairTarget::SharedModel(Arc::clone(&shared))
+            } else {
+                PairTarget::Model(&model)
+            };
             (
                 k,
                 Pair {
                     source: Cow::Borrowed(sources[k].as_slice()),
-                    ..Pair::against_model(&[], &model)
+                    target,
+                    init: None,
+                    seed: None,
                 },
             )
         })
@@ -268,6 +277,7 @@ fn workers_load_their_pairs_at_the_same_time_and_skip_what_fails_to_load() {
     results.sort_by_key(|(k, _)| *k);
     let keys: Vec<usize> = results.iter().map(|(k, _)| *k).collect();
     assert_eq!(keys, [0, 1, 2]);
+    assert_eq!(Arc::strong_count(&shared), 1, "the pair's share let go");
     // Each result is the pair registered alone, bit for bit.
     for (k, transformation) in results {
         let alone = model.register(&sources[k], None, &s).unwrap();

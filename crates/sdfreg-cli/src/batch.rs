@@ -8,7 +8,7 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
@@ -76,14 +76,12 @@ pub fn run(a: BatchArgs) -> Result<()> {
             pending.len()
         );
     }
-    // Each model is loaded once, for all its rows.
-    let mut models: HashMap<&Path, Result<SdfModel, String>> = HashMap::new();
-    for row in &pending {
-        if crate::is_model(&row.target_path) && !models.contains_key(row.target_path.as_path()) {
-            let model = SdfModel::load(&row.target_path).map_err(|e| e.to_string());
-            models.insert(&row.target_path, model);
-        }
-    }
+    let models = Models::new(
+        pending
+            .iter()
+            .map(|row| row.target_path.as_path())
+            .filter(|path| crate::is_model(path)),
+    );
     let bar = bar(pending.len() as u64);
     let out = Mutex::new(Output {
         file,
@@ -270,17 +268,65 @@ fn bar(len: u64) -> ProgressBar {
     bar
 }
 
+/// The stored models a batch's rows are registered against, each loaded once, by the first
+/// worker to read one of its rows (the others wait for it), and let go once its last row has
+/// been read, so it is freed when that row's registration ends: a batch over many models holds
+/// only those its rows in flight or still to come need.
+struct Models<'p> {
+    /// Per model file: how many rows still to read name it, and its model once loaded (an
+    /// error for a file that cannot be loaded, given to each of its rows).
+    left: Mutex<HashMap<&'p Path, (usize, ModelCell)>>,
+}
+
+type ModelCell = Arc<OnceLock<Result<Arc<SdfModel>, String>>>;
+
+impl<'p> Models<'p> {
+    /// For the rows' model files, one path per row (a path repeats for each row naming it).
+    fn new(paths: impl Iterator<Item = &'p Path>) -> Self {
+        let mut left: HashMap<&Path, (usize, ModelCell)> = HashMap::new();
+        for path in paths {
+            left.entry(path).or_default().0 += 1;
+        }
+        Models {
+            left: Mutex::new(left),
+        }
+    }
+
+    /// Claims the model at `path` for one of its rows, `None` when no row (or no row left)
+    /// names it; [`Models::load`] then gives the model.
+    fn claim(&self, path: &Path) -> Option<ModelCell> {
+        let mut left = lock(&self.left);
+        let (rows, cell) = left.get_mut(path)?;
+        *rows -= 1;
+        let cell = Arc::clone(cell);
+        if *rows == 0 {
+            left.remove(path);
+        }
+        Some(cell)
+    }
+
+    /// The claimed model at `path`, loaded by the first row to ask for it.
+    fn load(cell: &ModelCell, path: &Path) -> Result<Arc<SdfModel>, String> {
+        cell.get_or_init(|| {
+            SdfModel::load(path)
+                .map(Arc::new)
+                .map_err(|e| e.to_string())
+        })
+        .clone()
+    }
+}
+
 /// Reads a row's clouds and initial guess.
-fn load<'m>(
-    row: &Row,
-    models: &'m HashMap<&Path, Result<SdfModel, String>>,
-    a: &BatchArgs,
-) -> Result<Pair<'m>> {
+fn load(row: &Row, models: &Models, a: &BatchArgs) -> Result<Pair<'static>> {
     let seed = row.seed;
+    // Claimed before anything can fail, so that the model is let go after its last row.
+    let model = models.claim(&row.target_path);
     let source = crate::read_cloud(&row.source_path, &a.input, seed)?;
-    let target = match models.get(row.target_path.as_path()) {
-        Some(Ok(model)) => PairTarget::Model(model),
-        Some(Err(e)) => bail!("{e}"),
+    let target = match model {
+        Some(cell) => match Models::load(&cell, &row.target_path) {
+            Ok(model) => PairTarget::SharedModel(model),
+            Err(e) => bail!("{e}"),
+        },
         None => PairTarget::Cloud(crate::read_cloud(&row.target_path, &a.input, seed)?.into()),
     };
     let init: Option<Isometry3<f64>> = row.init.as_deref().map(crate::read_matrix).transpose()?;
@@ -469,4 +515,60 @@ fn check_resumable(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+    use sdfreg_core::sim::shapes::fibonacci_sphere;
+
+    #[test]
+    fn a_model_is_loaded_once_shared_by_its_rows_and_let_go_after_the_last() {
+        let dir = tempfile::tempdir().unwrap();
+        let target: Vec<Point3<f64>> = fibonacci_sphere(256)
+            .iter()
+            .map(|v| Point3::from(v.component_mul(&nalgebra::Vector3::new(1.0, 0.7, 0.5))))
+            .collect();
+        let mut settings = RegisterSettings::default();
+        settings.fit.model_prefit_steps = 20;
+        let fitted = SdfModel::fit(&target, &settings).unwrap();
+        let (a, b, gone) = (
+            dir.path().join("a.sdfm"),
+            dir.path().join("b.sdfm"),
+            dir.path().join("gone.sdfm"),
+        );
+        fitted.save(&a).unwrap();
+        fitted.save(&b).unwrap();
+        // Rows name a three times, b once and a missing model twice.
+        let paths = [&a, &b, &a, &gone, &a, &gone];
+        let models = Models::new(paths.iter().map(|p| p.as_path()));
+
+        let first = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
+        let second = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
+        assert!(
+            Arc::ptr_eq(&first, &second),
+            "a is loaded once, for all its rows"
+        );
+        assert_eq!(first.distance(&target), fitted.distance(&target));
+        let held = Arc::downgrade(&first);
+        let only_b = Models::load(&models.claim(&b).unwrap(), &b).unwrap();
+        assert!(models.claim(&b).is_none(), "b has no row left");
+        let b_held = Arc::downgrade(&only_b);
+        drop(only_b);
+        assert!(b_held.upgrade().is_none(), "b freed after its last row");
+        for _ in 0..2 {
+            let e = Models::load(&models.claim(&gone).unwrap(), &gone).unwrap_err();
+            assert!(e.contains("gone.sdfm"), "{e}");
+        }
+        drop((first, second));
+        assert!(
+            held.upgrade().is_some(),
+            "a kept while a row of it is still to come"
+        );
+        let last = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
+        assert!(lock(&models.left).is_empty());
+        drop(last);
+        assert!(held.upgrade().is_none(), "a freed after its last row");
+    }
 }

@@ -16,7 +16,7 @@
 
 use std::borrow::Cow;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use nalgebra::{Isometry3, Point3};
 
@@ -35,6 +35,10 @@ pub enum PairTarget<'a> {
     Cloud(Cow<'a, [Point3<f64>]>),
     /// A stored model, Φ frozen ([`SdfModel::register`]); the same model may serve many pairs.
     Model(&'a SdfModel),
+    /// A stored model the pair holds a share of: as [`PairTarget::Model`], for a model that a
+    /// [`register_each_loading`] worker loads (or takes from a cache) as it reads the pair, and
+    /// that is freed with the last pair holding it.
+    SharedModel(Arc<SdfModel>),
     /// A mesh's exact distance field ([`MeshModel::register`]).
     Mesh(&'a MeshModel),
 }
@@ -81,6 +85,7 @@ impl<'a> Pair<'a> {
             target: match &self.target {
                 PairTarget::Cloud(points) => PairTarget::Cloud(Cow::Borrowed(points)),
                 PairTarget::Model(model) => PairTarget::Model(model),
+                PairTarget::SharedModel(model) => PairTarget::Model(model),
                 PairTarget::Mesh(mesh) => PairTarget::Mesh(mesh),
             },
             init: self.init,
@@ -105,6 +110,7 @@ impl<'a> Pair<'a> {
         match &self.target {
             PairTarget::Cloud(target) => register(&self.source, target, self.init.as_ref(), s),
             PairTarget::Model(model) => model.register(&self.source, self.init.as_ref(), s),
+            PairTarget::SharedModel(model) => model.register(&self.source, self.init.as_ref(), s),
             PairTarget::Mesh(mesh) => mesh.register(&self.source, self.init.as_ref(), s),
         }
     }
