@@ -33,10 +33,11 @@ the same points turned 2.9° about z and moved (0.3, -0.2, 0.05) m. Prints the w
 errors. Two builds are compared by running this with SDFREG_CLI set to each.
 
 --models N: 2N rows through `sdfreg batch`, against N stored models (each its own file, a copy
-of the model of one frame of `lidar/kitti00_frames`), each model named by two rows in turn; the
-sources are the frames turned 1.5° about z and moved (0.2, -0.1, 0.05) m. Prints the wall time,
-CPU time, peak RSS and worst errors, as --laz does: a batch that keeps every model it has loaded
-grows with N.
+of the model of one frame of `lidar/kitti00_frames`), each model named by two rows; the sources
+are the frames turned 1.5° about z and moved (0.2, -0.1, 0.05) m. Runs two files: each model's
+rows together, and apart (every model's first row, then every second row). Prints the wall
+time, CPU time, peak RSS and worst errors of each, as --laz does: a batch that keeps every model
+it has loaded grows with N, and one whose two workers start on the same fresh model waits.
 """
 
 from __future__ import annotations
@@ -45,7 +46,6 @@ import argparse
 import concurrent.futures
 import json
 import os
-import resource
 import shutil
 import signal
 import subprocess
@@ -175,25 +175,27 @@ def cpu_flags() -> str:
     return " ".join(f for f in ("avx512f", "avx2", "fma") if f in flags) or "none of avx512f avx2 fma"
 
 
-def batch_run(csv: Path, out: Path, kill_after: int | None = None) -> tuple[float, float]:
-    """Runs `sdfreg batch`; (seconds, peak RSS in MiB of the child). With kill_after, SIGKILLs it
-    once that many records are in the output."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+def batch_run(csv: Path, out: Path, kill_after: int | None = None) -> tuple[float, float, float]:
+    """Runs `sdfreg batch`; (seconds, CPU seconds, peak RSS in MiB) of that child alone (its own
+    rusage, from wait4). With kill_after, SIGKILLs it once that many records are in the output."""
     start = time.perf_counter()
     proc = subprocess.Popen([CLI, "batch", csv, "--output", out], stderr=subprocess.DEVNULL)
-    if kill_after is not None:
-        while proc.poll() is None:
-            if out.exists() and out.read_bytes().count(b"\n") > kill_after:
-                proc.send_signal(signal.SIGKILL)
-                break
+    killed = kill_after is None
+    while True:
+        # Reaped here, not by Popen, to read the child's own rusage.
+        pid, status, usage = os.wait4(proc.pid, 0 if killed else os.WNOHANG)
+        if pid:
+            break
+        if out.exists() and out.read_bytes().count(b"\n") > kill_after:
+            os.kill(proc.pid, signal.SIGKILL)
+            killed = True
+        else:
             time.sleep(0.05)
-    proc.wait()
     seconds = time.perf_counter() - start
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    proc.returncode = os.waitstatus_to_exitcode(status)
     if kill_after is None and proc.returncode != 0:
         sys.exit(f"sdfreg batch exited {proc.returncode}")
-    # ru_maxrss of children is the largest of any child so far: a larger child raises it.
-    return seconds, max(peak, before) / 1024
+    return seconds, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024
 
 
 def stress(n: int) -> None:
@@ -209,12 +211,11 @@ def stress(n: int) -> None:
         for rows in (n // 10, n):
             csv = work / f"pairs{rows}.csv"
             csv.write_text("".join(f"s{k % 16:02d}.ply,model.sdfm\n" for k in range(rows)))
-            seconds, rss = batch_run(csv, work / f"out{rows}.jsonl")
-            print(f"{rows:>6} rows: {seconds:6.1f} s, {rows / seconds:6.1f} pairs/s, peak RSS {rss:6.1f} MiB "
-                  f"(the largest child so far)")
+            seconds, _, rss = batch_run(csv, work / f"out{rows}.jsonl")
+            print(f"{rows:>6} rows: {seconds:6.1f} s, {rows / seconds:6.1f} pairs/s, peak RSS {rss:6.1f} MiB")
         csv = work / f"pairs{n}.csv"
         out = work / "killed.jsonl"
-        seconds, _ = batch_run(csv, out, kill_after=n // 2)
+        seconds, _, _ = batch_run(csv, out, kill_after=n // 2)
         done = out.read_bytes().count(b"\n") - 1
         print(f"killed after {seconds:.1f} s with {done} rows in the output; resuming …")
         run = subprocess.run([CLI, "batch", csv, "--output", out], capture_output=True, text=True)
@@ -227,16 +228,14 @@ def stress(n: int) -> None:
         shutil.rmtree(work)
 
 
-def timed_batch(work: Path, truth: np.ndarray) -> str:
-    """Runs `sdfreg batch` on work/pairs.csv, each row's source being its target moved by
+def timed_batch(work: Path, truth: np.ndarray, pairs: str = "pairs.csv") -> str:
+    """Runs `sdfreg batch` on work/`pairs`, each row's source being its target moved by
     `truth`; the wall time, CPU time, peak RSS and worst errors, as a line (exits on a failed row)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    seconds, rss = batch_run(work / "pairs.csv", work / "out.jsonl")
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+    out = work / Path(pairs).with_suffix(".jsonl")
+    seconds, cpu, rss = batch_run(work / pairs, out)
     inverse = np.linalg.inv(truth)
     worst = (0.0, 0.0)
-    for line in (work / "out.jsonl").read_text().splitlines()[1:]:
+    for line in out.read_text().splitlines()[1:]:
         record = json.loads(line)
         if not record["ok"]:
             sys.exit(f"batch.py: row {record['row']} failed: {record['error']}")
@@ -299,14 +298,17 @@ def many_models(data: Path, n: int) -> None:
             sdfreg.fit(scan).save(work / f"fitted{j}.sdfm")
         rows = []
         for k in range(n):
-            # Each model its own file (a copy of one frame's), named by two rows in turn.
+            # Each model its own file (a copy of one frame's).
             j = k % len(frames)
             shutil.copyfile(work / f"fitted{j}.sdfm", work / f"m{k}.sdfm")
-            rows += [f"s{j}.ply,m{k}.sdfm\n"] * 2
-        (work / "pairs.csv").write_text("".join(rows))
+            rows.append(f"s{j}.ply,m{k}.sdfm\n")
+        # Each model's two rows one after the other, or every model's first row, then the second.
+        (work / "together.csv").write_text("".join(row * 2 for row in rows))
+        (work / "apart.csv").write_text("".join(rows * 2))
         model_mib = (work / "m0.sdfm").stat().st_size / 2**20
-        print(f"{2 * n} rows against {n} stored models of {model_mib:.1f} MiB each ({cpu_flags()}): "
-              f"{timed_batch(work, truth)}")
+        print(f"{2 * n} rows against {n} stored models of {model_mib:.1f} MiB each ({cpu_flags()}):")
+        for order in ("together", "apart"):
+            print(f"  a model's rows {order}: {timed_batch(work, truth, f'{order}.csv')}")
     finally:
         shutil.rmtree(work)
 

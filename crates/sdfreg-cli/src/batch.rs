@@ -3,7 +3,7 @@
 //! (`sdfreg_core::batch::log` documents the file), so a crash or Ctrl-C loses no finished pair;
 //! run again, it resumes: rows already in the output are skipped.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -82,6 +82,7 @@ pub fn run(a: BatchArgs) -> Result<()> {
             .map(|row| row.target_path.as_path())
             .filter(|path| crate::is_model(path)),
     );
+    let queue = Queue::new(&pending, &models);
     let bar = bar(pending.len() as u64);
     let out = Mutex::new(Output {
         file,
@@ -95,35 +96,30 @@ pub fn run(a: BatchArgs) -> Result<()> {
     let start = Instant::now();
     // Each worker reads its row's files (at the same time as the others); rows whose files
     // cannot be read are recorded as failed right away, the rest register.
-    let read = |row| match load(row, &models, &a) {
+    let read = |(row, model)| match load(row, model, &a) {
         Ok(pair) => Some((row, pair)),
         Err(e) => {
+            models.ended(&row.target_path, false);
             lock(&out).record(row, Err(format!("{e:#}")));
             None
         }
     };
     let stop = AtomicBool::new(false);
-    register_each_loading(
-        pending,
-        read,
-        &settings,
-        a.common.threads,
-        &stop,
-        |row, r| {
-            let r = r.map_err(|e| {
-                format!(
-                    "{:#}",
-                    crate::name_cloud(e.into(), &row.source_path, &row.target_path)
-                )
-            });
-            let mut out = lock(&out);
-            out.record(row, r);
-            if out.error.is_some() {
-                // The output cannot be written: start no more pairs.
-                stop.store(true, std::sync::atomic::Ordering::Relaxed);
-            }
-        },
-    )?;
+    register_each_loading(queue, read, &settings, a.common.threads, &stop, |row, r| {
+        models.ended(&row.target_path, true);
+        let r = r.map_err(|e| {
+            format!(
+                "{:#}",
+                crate::name_cloud(e.into(), &row.source_path, &row.target_path)
+            )
+        });
+        let mut out = lock(&out);
+        out.record(row, r);
+        if out.error.is_some() {
+            // The output cannot be written: start no more pairs.
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    })?;
     bar.finish_and_clear();
     let out = out.into_inner().unwrap_or_else(|e| e.into_inner());
     if let Some(e) = out.error {
@@ -273,9 +269,24 @@ fn bar(len: u64) -> ProgressBar {
 /// been read, so it is freed when that row's registration ends: a batch over many models holds
 /// only those its rows in flight or still to come need.
 struct Models<'p> {
-    /// Per model file: how many rows still to read name it, and its model once loaded (an
-    /// error for a file that cannot be loaded, given to each of its rows).
-    left: Mutex<HashMap<&'p Path, (usize, ModelCell)>>,
+    /// Per model file with rows still to read; the [`Queue`] reads it too, under the same lock.
+    left: Mutex<HashMap<&'p Path, Entry>>,
+}
+
+/// A model file's rows still to read, and its model once loaded.
+#[derive(Default)]
+struct Entry {
+    /// Rows still to read that name it.
+    rows: usize,
+    /// The model once loaded (an error for a file that cannot be loaded, given to each of its
+    /// rows).
+    cell: ModelCell,
+    /// Rows read and not yet ended.
+    running: usize,
+    /// A registration against it has ended, so the caches a first registration builds in a
+    /// model (the multi-start's baked grid, its corners) are there: a further row of it starts
+    /// at once instead of waiting for them.
+    warm: bool,
 }
 
 type ModelCell = Arc<OnceLock<Result<Arc<SdfModel>, String>>>;
@@ -283,26 +294,13 @@ type ModelCell = Arc<OnceLock<Result<Arc<SdfModel>, String>>>;
 impl<'p> Models<'p> {
     /// For the rows' model files, one path per row (a path repeats for each row naming it).
     fn new(paths: impl Iterator<Item = &'p Path>) -> Self {
-        let mut left: HashMap<&Path, (usize, ModelCell)> = HashMap::new();
+        let mut left: HashMap<&Path, Entry> = HashMap::new();
         for path in paths {
-            left.entry(path).or_default().0 += 1;
+            left.entry(path).or_default().rows += 1;
         }
         Models {
             left: Mutex::new(left),
         }
-    }
-
-    /// Claims the model at `path` for one of its rows, `None` when no row (or no row left)
-    /// names it; [`Models::load`] then gives the model.
-    fn claim(&self, path: &Path) -> Option<ModelCell> {
-        let mut left = lock(&self.left);
-        let (rows, cell) = left.get_mut(path)?;
-        *rows -= 1;
-        let cell = Arc::clone(cell);
-        if *rows == 0 {
-            left.remove(path);
-        }
-        Some(cell)
     }
 
     /// The claimed model at `path`, loaded by the first row to ask for it.
@@ -314,13 +312,90 @@ impl<'p> Models<'p> {
         })
         .clone()
     }
+
+    /// A row against `path` has ended: `registered` when its registration ran (and built the
+    /// model's caches), not when its files could not be read.
+    fn ended(&self, path: &Path, registered: bool) {
+        if let Some(entry) = lock(&self.left).get_mut(path) {
+            entry.running = entry.running.saturating_sub(1);
+            entry.warm |= registered;
+        }
+    }
 }
 
-/// Reads a row's clouds and initial guess.
-fn load(row: &Row, models: &Models, a: &BatchArgs) -> Result<Pair<'static>> {
+/// Claims the model at `path` for one of its rows (under [`Models`]'s lock), `None` when no row
+/// (or no row left) names it; [`Models::load`] then gives the model.
+fn claim(left: &mut HashMap<&Path, Entry>, path: &Path) -> Option<ModelCell> {
+    let entry = left.get_mut(path)?;
+    entry.rows -= 1;
+    entry.running += 1;
+    let cell = Arc::clone(&entry.cell);
+    if entry.rows == 0 {
+        left.remove(path);
+    }
+    Some(cell)
+}
+
+/// The order the workers take the rows in, each with its model claimed. A model's rows are
+/// taken together, from where its first row stands (so it is loaded once and freed soon, where
+/// rows spread over the file kept it to the end). A model's further rows wait until its first
+/// registration has ended: meanwhile a free worker takes the next row of another model or
+/// cloud, and waits only when no other row is left (two workers starting on one fresh model
+/// would both wait for the caches it builds, one doing nothing).
+struct Queue<'r, 'p> {
+    /// Rows still to take: a model's rows in one group, a row against a cloud alone.
+    groups: VecDeque<VecDeque<&'r Row>>,
+    models: &'r Models<'p>,
+}
+
+impl<'r, 'p> Queue<'r, 'p> {
+    fn new(rows: &[&'r Row], models: &'r Models<'p>) -> Self {
+        let mut groups: Vec<VecDeque<&Row>> = Vec::new();
+        let mut of_model: HashMap<&Path, usize> = HashMap::new();
+        for &row in rows {
+            let path = row.target_path.as_path();
+            match of_model.get(path) {
+                Some(&k) => groups[k].push_back(row),
+                None => {
+                    if crate::is_model(path) {
+                        of_model.insert(path, groups.len());
+                    }
+                    groups.push(VecDeque::from([row]));
+                }
+            }
+        }
+        Queue {
+            groups: groups.into(),
+            models,
+        }
+    }
+}
+
+impl<'r> Iterator for Queue<'r, '_> {
+    type Item = (&'r Row, Option<ModelCell>);
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let mut left = lock(&self.models.left);
+        let ready = |group: &VecDeque<&Row>| {
+            group.front().is_some_and(|row| {
+                left.get(row.target_path.as_path())
+                    .is_none_or(|e| e.warm || e.running == 0)
+            })
+        };
+        let k = self.groups.iter().position(ready).unwrap_or(0);
+        let group = self.groups.get_mut(k)?;
+        let row = group.pop_front()?;
+        if group.is_empty() {
+            self.groups.remove(k);
+        }
+        Some((row, claim(&mut left, &row.target_path)))
+    }
+}
+
+/// Reads a row's clouds and initial guess; `model` its target's claimed model (`None` for a
+/// cloud).
+fn load(row: &Row, model: Option<ModelCell>, a: &BatchArgs) -> Result<Pair<'static>> {
     let seed = row.seed;
-    // Claimed before anything can fail, so that the model is let go after its last row.
-    let model = models.claim(&row.target_path);
     let source = crate::read_cloud(&row.source_path, &a.input, seed)?;
     let target = match model {
         Some(cell) => match Models::load(&cell, &row.target_path) {
@@ -543,22 +618,23 @@ mod tests {
         // Rows name a three times, b once and a missing model twice.
         let paths = [&a, &b, &a, &gone, &a, &gone];
         let models = Models::new(paths.iter().map(|p| p.as_path()));
+        let claim = |path: &Path| claim(&mut lock(&models.left), path);
 
-        let first = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
-        let second = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
+        let first = Models::load(&claim(&a).unwrap(), &a).unwrap();
+        let second = Models::load(&claim(&a).unwrap(), &a).unwrap();
         assert!(
             Arc::ptr_eq(&first, &second),
             "a is loaded once, for all its rows"
         );
         assert_eq!(first.distance(&target), fitted.distance(&target));
         let held = Arc::downgrade(&first);
-        let only_b = Models::load(&models.claim(&b).unwrap(), &b).unwrap();
-        assert!(models.claim(&b).is_none(), "b has no row left");
+        let only_b = Models::load(&claim(&b).unwrap(), &b).unwrap();
+        assert!(claim(&b).is_none(), "b has no row left");
         let b_held = Arc::downgrade(&only_b);
         drop(only_b);
         assert!(b_held.upgrade().is_none(), "b freed after its last row");
         for _ in 0..2 {
-            let e = Models::load(&models.claim(&gone).unwrap(), &gone).unwrap_err();
+            let e = Models::load(&claim(&gone).unwrap(), &gone).unwrap_err();
             assert!(e.contains("gone.sdfm"), "{e}");
         }
         drop((first, second));
@@ -566,9 +642,85 @@ mod tests {
             held.upgrade().is_some(),
             "a kept while a row of it is still to come"
         );
-        let last = Models::load(&models.claim(&a).unwrap(), &a).unwrap();
+        let last = Models::load(&claim(&a).unwrap(), &a).unwrap();
         assert!(lock(&models.left).is_empty());
         drop(last);
         assert!(held.upgrade().is_none(), "a freed after its last row");
+    }
+
+    /// A row of the pairs file against `target`.
+    fn row(number: u64, target: &str) -> Row {
+        Row {
+            number,
+            source: "s.ply".into(),
+            target: target.into(),
+            source_path: "s.ply".into(),
+            target_path: target.into(),
+            init: None,
+            seed: 0,
+        }
+    }
+
+    /// The number of the row `queue` gives next, 0 when none is left.
+    fn taken(queue: &mut Queue) -> u64 {
+        queue.next().map_or(0, |(row, _)| row.number)
+    }
+
+    #[test]
+    fn a_model_s_rows_are_taken_together_and_its_second_waits_for_its_first_to_end() {
+        // a.sdfm and b.sdfm spread over the file, and two clouds.
+        let targets = [
+            "a.sdfm", "b.sdfm", "a.sdfm", "c.ply", "b.sdfm", "a.sdfm", "d.ply",
+        ];
+        let rows: Vec<Row> = (1..).zip(targets).map(|(k, t)| row(k, t)).collect();
+        let pending: Vec<&Row> = rows.iter().collect();
+        let models = Models::new(
+            pending
+                .iter()
+                .map(|r| r.target_path.as_path())
+                .filter(|p| crate::is_model(p)),
+        );
+        let mut queue = Queue::new(&pending, &models);
+        let (a, b) = (Path::new("a.sdfm"), Path::new("b.sdfm"));
+        let (first, cell) = queue.next().unwrap();
+        assert_eq!(first.number, 1);
+        let a_cell = cell.expect("a model row comes with its model claimed");
+        // a's first registration runs: the next worker takes b's row, then the cloud's, rather
+        // than a second row of a.
+        assert_eq!(taken(&mut queue), 2);
+        assert_eq!(taken(&mut queue), 4, "a and b both still fresh");
+        models.ended(a, true);
+        // a has been registered against once: its rows come next, together, before the cloud
+        // d that stands before a's last in the file.
+        let (third, cell) = queue.next().unwrap();
+        assert_eq!(third.number, 3);
+        assert!(
+            Arc::ptr_eq(&a_cell, &cell.unwrap()),
+            "one model for a's rows"
+        );
+        assert_eq!(taken(&mut queue), 6);
+        assert!(
+            !lock(&models.left).contains_key(a),
+            "a let go after its last row"
+        );
+        // b's first row ended without a registration (its source could not be read): its next
+        // row need not wait, and comes before the cloud d.
+        models.ended(b, false);
+        assert_eq!(taken(&mut queue), 5);
+        let (last, cell) = queue.next().unwrap();
+        assert_eq!(
+            (last.number, cell.is_none()),
+            (7, true),
+            "a cloud has no model"
+        );
+        assert_eq!(taken(&mut queue), 0);
+        assert!(lock(&models.left).is_empty());
+
+        // With no other row to take, a fresh model's second row is taken at once.
+        let rows = [row(1, "a.sdfm"), row(2, "a.sdfm")];
+        let pending: Vec<&Row> = rows.iter().collect();
+        let models = Models::new(pending.iter().map(|r| r.target_path.as_path()));
+        let mut queue = Queue::new(&pending, &models);
+        assert_eq!([taken(&mut queue), taken(&mut queue)], [1, 2]);
     }
 }
