@@ -668,9 +668,10 @@ mod tests {
 
     #[test]
     fn a_model_s_rows_are_taken_together_and_its_second_waits_for_its_first_to_end() {
-        // a.sdfm and b.sdfm spread over the file, and two clouds.
+        // Models a, b and e spread over the file, and three clouds.
         let targets = [
-            "a.sdfm", "b.sdfm", "a.sdfm", "c.ply", "b.sdfm", "a.sdfm", "d.ply",
+            "a.sdfm", "b.sdfm", "a.sdfm", "c.ply", "b.sdfm", "a.sdfm", "e.sdfm", "d.ply", "e.sdfm",
+            "f.ply",
         ];
         let rows: Vec<Row> = (1..).zip(targets).map(|(k, t)| row(k, t)).collect();
         let pending: Vec<&Row> = rows.iter().collect();
@@ -681,7 +682,7 @@ mod tests {
                 .filter(|p| crate::is_model(p)),
         );
         let mut queue = Queue::new(&pending, &models);
-        let (a, b) = (Path::new("a.sdfm"), Path::new("b.sdfm"));
+        let [a, b, e] = ["a.sdfm", "b.sdfm", "e.sdfm"].map(Path::new);
         let (first, cell) = queue.next().unwrap();
         assert_eq!(first.number, 1);
         let a_cell = cell.expect("a model row comes with its model claimed");
@@ -690,8 +691,9 @@ mod tests {
         assert_eq!(taken(&mut queue), 2);
         assert_eq!(taken(&mut queue), 4, "a and b both still fresh");
         models.ended(a, true);
-        // a has been registered against once: its rows come next, together, before the cloud
-        // d that stands before a's last in the file.
+        models.ended(b, true);
+        // Both have been registered against once: a's rows come next, together (row 6 before
+        // b's row 5), then b's.
         let (third, cell) = queue.next().unwrap();
         assert_eq!(third.number, 3);
         assert!(
@@ -703,16 +705,20 @@ mod tests {
             !lock(&models.left).contains_key(a),
             "a let go after its last row"
         );
-        // b's first row ended without a registration (its source could not be read): its next
-        // row need not wait, and comes before the cloud d.
-        models.ended(b, false);
         assert_eq!(taken(&mut queue), 5);
-        let (last, cell) = queue.next().unwrap();
+        // e's first row, then the cloud d while e is fresh.
+        assert_eq!(taken(&mut queue), 7);
+        let (cloud, cell) = queue.next().unwrap();
         assert_eq!(
-            (last.number, cell.is_none()),
-            (7, true),
+            (cloud.number, cell.is_none()),
+            (8, true),
             "a cloud has no model"
         );
+        // e's first row ended without a registration (its source could not be read): its next
+        // row need not wait, and comes before the cloud f.
+        models.ended(e, false);
+        assert_eq!(taken(&mut queue), 9);
+        assert_eq!(taken(&mut queue), 10);
         assert_eq!(taken(&mut queue), 0);
         assert!(lock(&models.left).is_empty());
 
