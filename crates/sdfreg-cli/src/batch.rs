@@ -41,6 +41,9 @@ struct Row {
     target: String,
     source_path: PathBuf,
     target_path: PathBuf,
+    /// For a target that is a stored model, the file's canonical path (as resolved when it has
+    /// none): the key its rows share one loaded model by, however each spells it.
+    model: Option<PathBuf>,
     init: Option<PathBuf>,
     /// The row's seed, or `--seed` when it gives none.
     seed: u64,
@@ -76,12 +79,7 @@ pub fn run(a: BatchArgs) -> Result<()> {
             pending.len()
         );
     }
-    let models = Models::new(
-        pending
-            .iter()
-            .map(|row| row.target_path.as_path())
-            .filter(|path| crate::is_model(path)),
-    );
+    let models = Models::new(pending.iter().filter_map(|row| row.model.as_deref()));
     let queue = Queue::new(&pending, &models);
     let bar = bar(pending.len() as u64);
     let out = Mutex::new(Output {
@@ -99,14 +97,14 @@ pub fn run(a: BatchArgs) -> Result<()> {
     let read = |(row, model)| match load(row, model, &a) {
         Ok(pair) => Some((row, pair)),
         Err(e) => {
-            models.ended(&row.target_path, false);
+            models.ended(row, false);
             lock(&out).record(row, Err(format!("{e:#}")));
             None
         }
     };
     let stop = AtomicBool::new(false);
     register_each_loading(queue, read, &settings, a.common.threads, &stop, |row, r| {
-        models.ended(&row.target_path, true);
+        models.ended(row, true);
         let r = r.map_err(|e| {
             format!(
                 "{:#}",
@@ -313,10 +311,11 @@ impl<'p> Models<'p> {
         .clone()
     }
 
-    /// A row against `path` has ended: `registered` when its registration ran (and built the
-    /// model's caches), not when its files could not be read.
-    fn ended(&self, path: &Path, registered: bool) {
-        if let Some(entry) = lock(&self.left).get_mut(path) {
+    /// `row` has ended: `registered` when its registration ran (and built the model's caches),
+    /// not when its files could not be read.
+    fn ended(&self, row: &Row, registered: bool) {
+        let mut left = lock(&self.left);
+        if let Some(entry) = row.model.as_deref().and_then(|key| left.get_mut(key)) {
             entry.running = entry.running.saturating_sub(1);
             entry.warm |= registered;
         }
@@ -353,12 +352,11 @@ impl<'r, 'p> Queue<'r, 'p> {
         let mut groups: Vec<VecDeque<&Row>> = Vec::new();
         let mut of_model: HashMap<&Path, usize> = HashMap::new();
         for &row in rows {
-            let path = row.target_path.as_path();
-            match of_model.get(path) {
-                Some(&k) => groups[k].push_back(row),
-                None => {
-                    if crate::is_model(path) {
-                        of_model.insert(path, groups.len());
+            match row.model.as_deref() {
+                Some(key) if of_model.contains_key(key) => groups[of_model[key]].push_back(row),
+                key => {
+                    if let Some(key) = key {
+                        of_model.insert(key, groups.len());
                     }
                     groups.push(VecDeque::from([row]));
                 }
@@ -378,7 +376,9 @@ impl<'r> Iterator for Queue<'r, '_> {
         let mut left = lock(&self.models.left);
         let ready = |group: &VecDeque<&Row>| {
             group.front().is_some_and(|row| {
-                left.get(row.target_path.as_path())
+                row.model
+                    .as_deref()
+                    .and_then(|key| left.get(key))
                     .is_none_or(|e| e.warm || e.running == 0)
             })
         };
@@ -388,7 +388,8 @@ impl<'r> Iterator for Queue<'r, '_> {
         if group.is_empty() {
             self.groups.remove(k);
         }
-        Some((row, claim(&mut left, &row.target_path)))
+        let model = row.model.as_deref().and_then(|key| claim(&mut left, key));
+        Some((row, model))
     }
 }
 
@@ -460,12 +461,19 @@ fn read_pairs(path: &Path, default_seed: u64) -> Result<Vec<Row>> {
             })?,
             None => default_seed,
         };
+        let target_path = resolve(target);
+        let model = crate::is_model(&target_path).then(|| {
+            target_path
+                .canonicalize()
+                .unwrap_or_else(|_| target_path.clone())
+        });
         rows.push(Row {
             number: rows.len() as u64 + 1,
             source: source.to_string(),
             target: target.to_string(),
             source_path: resolve(source),
-            target_path: resolve(target),
+            target_path,
+            model,
             init,
             seed,
         });
@@ -656,6 +664,7 @@ mod tests {
             target: target.into(),
             source_path: "s.ply".into(),
             target_path: target.into(),
+            model: crate::is_model(Path::new(target)).then(|| target.into()),
             init: None,
             seed: 0,
         }
@@ -675,14 +684,9 @@ mod tests {
         ];
         let rows: Vec<Row> = (1..).zip(targets).map(|(k, t)| row(k, t)).collect();
         let pending: Vec<&Row> = rows.iter().collect();
-        let models = Models::new(
-            pending
-                .iter()
-                .map(|r| r.target_path.as_path())
-                .filter(|p| crate::is_model(p)),
-        );
+        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
         let mut queue = Queue::new(&pending, &models);
-        let [a, b, e] = ["a.sdfm", "b.sdfm", "e.sdfm"].map(Path::new);
+        let a = Path::new("a.sdfm");
         let (first, cell) = queue.next().unwrap();
         assert_eq!(first.number, 1);
         let a_cell = cell.expect("a model row comes with its model claimed");
@@ -690,8 +694,8 @@ mod tests {
         // than a second row of a.
         assert_eq!(taken(&mut queue), 2);
         assert_eq!(taken(&mut queue), 4, "a and b both still fresh");
-        models.ended(a, true);
-        models.ended(b, true);
+        models.ended(&rows[0], true);
+        models.ended(&rows[1], true);
         // Both have been registered against once: a's rows come next, together (row 6 before
         // b's row 5), then b's.
         let (third, cell) = queue.next().unwrap();
@@ -716,7 +720,7 @@ mod tests {
         );
         // e's first row ended without a registration (its source could not be read): its next
         // row need not wait, and comes before the cloud f.
-        models.ended(e, false);
+        models.ended(&rows[6], false);
         assert_eq!(taken(&mut queue), 9);
         assert_eq!(taken(&mut queue), 10);
         assert_eq!(taken(&mut queue), 0);
@@ -725,8 +729,43 @@ mod tests {
         // With no other row to take, a fresh model's second row is taken at once.
         let rows = [row(1, "a.sdfm"), row(2, "a.sdfm")];
         let pending: Vec<&Row> = rows.iter().collect();
-        let models = Models::new(pending.iter().map(|r| r.target_path.as_path()));
+        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
         let mut queue = Queue::new(&pending, &models);
         assert_eq!([taken(&mut queue), taken(&mut queue)], [1, 2]);
+    }
+
+    #[test]
+    fn a_model_spelled_two_ways_in_the_pairs_file_is_loaded_once() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("sub")).unwrap();
+        std::fs::write(dir.path().join("m.sdfm"), b"").unwrap();
+        let pairs = dir.path().join("pairs.csv");
+        std::fs::write(
+            &pairs,
+            "s.ply,m.sdfm\ns.ply,./m.sdfm\ns.ply,sub/../m.sdfm\ns.ply,gone.sdfm\n",
+        )
+        .unwrap();
+        let rows = read_pairs(&pairs, 0).unwrap();
+        let pending: Vec<&Row> = rows.iter().collect();
+        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
+        let mut queue = Queue::new(&pending, &models);
+        let (_, first) = queue.next().unwrap();
+        models.ended(&rows[0], true);
+        let cells: Vec<ModelCell> = [first, queue.next().unwrap().1, queue.next().unwrap().1]
+            .into_iter()
+            .map(Option::unwrap)
+            .collect();
+        assert!(
+            cells.iter().all(|c| Arc::ptr_eq(c, &cells[0])),
+            "m.sdfm, ./m.sdfm and sub/../m.sdfm share one model"
+        );
+        // A model that is not there keeps its path as resolved (its load then names it).
+        let (row, cell) = queue.next().unwrap();
+        assert_eq!(
+            row.model.as_deref(),
+            Some(dir.path().join("gone.sdfm").as_path())
+        );
+        assert!(cell.is_some());
+        assert!(lock(&models.left).is_empty());
     }
 }
