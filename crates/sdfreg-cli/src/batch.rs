@@ -263,8 +263,8 @@ fn bar(len: u64) -> ProgressBar {
 }
 
 /// The stored models a batch's rows are registered against, each loaded once, by the first
-/// worker to read one of its rows (the others wait for it), and let go once its last row has
-/// been read, so it is freed when that row's registration ends: a batch over many models holds
+/// worker to read one of its rows (another reading one of its rows meanwhile waits for it),
+/// and let go once its last row has been read, so it is freed when that row's registration ends: a batch over many models holds
 /// only those its rows in flight or still to come need.
 struct Models<'p> {
     /// Per model file with rows still to read; the [`Queue`] reads it too, under the same lock.
@@ -282,8 +282,8 @@ struct Entry {
     /// Rows read and not yet ended.
     running: usize,
     /// A registration against it has ended, so the caches a first registration builds in a
-    /// model (the multi-start's baked grid, its corners) are there: a further row of it starts
-    /// at once instead of waiting for them.
+    /// model (the multi-start's baked grid, the local grid's corners, the polish planes at its
+    /// points) are there: a further row of it starts at once instead of waiting for them.
     warm: bool,
 }
 
