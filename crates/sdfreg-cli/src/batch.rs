@@ -79,7 +79,7 @@ pub fn run(a: BatchArgs) -> Result<()> {
             pending.len()
         );
     }
-    let models = Models::new(pending.iter().filter_map(|row| row.model.as_deref()));
+    let models = Models::default();
     let queue = Queue::new(&pending, &models);
     let bar = bar(pending.len() as u64);
     let out = Mutex::new(Output {
@@ -264,18 +264,18 @@ fn bar(len: u64) -> ProgressBar {
 
 /// The stored models a batch's rows are registered against, each loaded once, by the first
 /// worker to read one of its rows (another reading one of its rows meanwhile waits for it),
-/// and let go once its last row has been read, so it is freed when that row's registration ends: a batch over many models holds
-/// only those its rows in flight or still to come need.
+/// and let go once the [`Queue`] has handed out its last row, so it is freed when that row's
+/// registration ends: a batch over many models holds only those its rows in flight or still to
+/// come need.
+#[derive(Default)]
 struct Models<'p> {
-    /// Per model file with rows still to read; the [`Queue`] reads it too, under the same lock.
+    /// Per model file with rows still to take (the [`Queue`] adds them and takes them out).
     left: Mutex<HashMap<&'p Path, Entry>>,
 }
 
-/// A model file's rows still to read, and its model once loaded.
+/// A model file with rows still to take: its model once loaded, and how its rows are going.
 #[derive(Default)]
 struct Entry {
-    /// Rows still to read that name it.
-    rows: usize,
     /// The model once loaded (an error for a file that cannot be loaded, given to each of its
     /// rows).
     cell: ModelCell,
@@ -289,18 +289,7 @@ struct Entry {
 
 type ModelCell = Arc<OnceLock<Result<Arc<SdfModel>, String>>>;
 
-impl<'p> Models<'p> {
-    /// For the rows' model files, one path per row (a path repeats for each row naming it).
-    fn new(paths: impl Iterator<Item = &'p Path>) -> Self {
-        let mut left: HashMap<&Path, Entry> = HashMap::new();
-        for path in paths {
-            left.entry(path).or_default().rows += 1;
-        }
-        Models {
-            left: Mutex::new(left),
-        }
-    }
-
+impl Models<'_> {
     /// The claimed model at `path`, loaded by the first row to ask for it.
     fn load(cell: &ModelCell, path: &Path) -> Result<Arc<SdfModel>, String> {
         cell.get_or_init(|| {
@@ -322,25 +311,13 @@ impl<'p> Models<'p> {
     }
 }
 
-/// Claims the model at `path` for one of its rows (under [`Models`]'s lock), `None` when no row
-/// (or no row left) names it; [`Models::load`] then gives the model.
-fn claim(left: &mut HashMap<&Path, Entry>, path: &Path) -> Option<ModelCell> {
-    let entry = left.get_mut(path)?;
-    entry.rows -= 1;
-    entry.running += 1;
-    let cell = Arc::clone(&entry.cell);
-    if entry.rows == 0 {
-        left.remove(path);
-    }
-    Some(cell)
-}
-
-/// The order the workers take the rows in, each with its model claimed. A model's rows are
-/// taken together, from where its first row stands (so it is loaded once and freed soon, where
-/// rows spread over the file kept it to the end). A model's further rows wait until its first
-/// registration has ended: meanwhile a free worker takes the next row of another model or
-/// cloud, and waits only when no other row is left (two workers starting on one fresh model
-/// would both wait for the caches it builds, one doing nothing).
+/// The order the workers take the rows in, each with its model claimed (for
+/// [`Models::load`]). A model's rows are taken together, from where its first row stands (so
+/// it is loaded once and freed soon, where rows spread over the file kept it to the end). A
+/// model's further rows wait until its first registration has ended: meanwhile a free worker
+/// takes the next row of another model or cloud, and waits only when no other row is left (two
+/// workers starting on one fresh model would both wait for the caches it builds, one doing
+/// nothing).
 struct Queue<'r, 'p> {
     /// Rows still to take: a model's rows in one group, a row against a cloud alone.
     groups: VecDeque<VecDeque<&'r Row>>,
@@ -348,7 +325,11 @@ struct Queue<'r, 'p> {
 }
 
 impl<'r, 'p> Queue<'r, 'p> {
-    fn new(rows: &[&'r Row], models: &'r Models<'p>) -> Self {
+    /// `rows` in groups, each model file they name entered in `models`.
+    fn new(rows: &[&'p Row], models: &'r Models<'p>) -> Self
+    where
+        'p: 'r,
+    {
         let mut groups: Vec<VecDeque<&Row>> = Vec::new();
         let mut of_model: HashMap<&Path, usize> = HashMap::new();
         for &row in rows {
@@ -357,6 +338,7 @@ impl<'r, 'p> Queue<'r, 'p> {
                 key => {
                     if let Some(key) = key {
                         of_model.insert(key, groups.len());
+                        lock(&models.left).insert(key, Entry::default());
                     }
                     groups.push(VecDeque::from([row]));
                 }
@@ -385,10 +367,20 @@ impl<'r> Iterator for Queue<'r, '_> {
         let k = self.groups.iter().position(ready).unwrap_or(0);
         let group = self.groups.get_mut(k)?;
         let row = group.pop_front()?;
-        if group.is_empty() {
+        let last = group.is_empty();
+        if last {
             self.groups.remove(k);
         }
-        let model = row.model.as_deref().and_then(|key| claim(&mut left, key));
+        // The row's model claimed, and let go of after its last row.
+        let model = row.model.as_deref().and_then(|key| {
+            let entry = left.get_mut(key)?;
+            entry.running += 1;
+            let cell = Arc::clone(&entry.cell);
+            if last {
+                left.remove(key);
+            }
+            Some(cell)
+        });
         Some((row, model))
     }
 }
@@ -624,36 +616,52 @@ mod tests {
         fitted.save(&a).unwrap();
         fitted.save(&b).unwrap();
         // Rows name a three times, b once and a missing model twice.
-        let paths = [&a, &b, &a, &gone, &a, &gone];
-        let models = Models::new(paths.iter().map(|p| p.as_path()));
-        let claim = |path: &Path| claim(&mut lock(&models.left), path);
+        let rows: Vec<Row> = (1..)
+            .zip([&a, &b, &a, &gone, &a, &gone])
+            .map(|(k, path)| row(k, path.to_str().unwrap()))
+            .collect();
+        let pending: Vec<&Row> = rows.iter().collect();
+        let models = Models::default();
+        let mut queue = Queue::new(&pending, &models);
+        let mut take = |number: u64| {
+            let (row, cell) = queue.next().unwrap();
+            assert_eq!(row.number, number);
+            Models::load(&cell.unwrap(), &row.target_path)
+        };
 
-        let first = Models::load(&claim(&a).unwrap(), &a).unwrap();
-        let second = Models::load(&claim(&a).unwrap(), &a).unwrap();
+        let first = take(1).unwrap();
+        models.ended(&rows[0], true);
+        let second = take(3).unwrap();
         assert!(
             Arc::ptr_eq(&first, &second),
             "a is loaded once, for all its rows"
         );
         assert_eq!(first.distance(&target), fitted.distance(&target));
         let held = Arc::downgrade(&first);
-        let only_b = Models::load(&claim(&b).unwrap(), &b).unwrap();
-        assert!(claim(&b).is_none(), "b has no row left");
-        let b_held = Arc::downgrade(&only_b);
-        drop(only_b);
-        assert!(b_held.upgrade().is_none(), "b freed after its last row");
-        for _ in 0..2 {
-            let e = Models::load(&claim(&gone).unwrap(), &gone).unwrap_err();
-            assert!(e.contains("gone.sdfm"), "{e}");
-        }
         drop((first, second));
         assert!(
             held.upgrade().is_some(),
             "a kept while a row of it is still to come"
         );
-        let last = Models::load(&claim(&a).unwrap(), &a).unwrap();
-        assert!(lock(&models.left).is_empty());
+        let last = take(5).unwrap();
+        assert!(!lock(&models.left).contains_key(a.as_path()));
         drop(last);
         assert!(held.upgrade().is_none(), "a freed after its last row");
+        let only_b = take(2).unwrap();
+        assert!(
+            !lock(&models.left).contains_key(b.as_path()),
+            "b has no row left"
+        );
+        let b_held = Arc::downgrade(&only_b);
+        drop(only_b);
+        assert!(b_held.upgrade().is_none(), "b freed after its last row");
+        for (number, at) in [(4, 3), (6, 5)] {
+            let e = take(number).unwrap_err();
+            assert!(e.contains("gone.sdfm"), "{e}");
+            models.ended(&rows[at], false);
+        }
+        assert!(lock(&models.left).is_empty());
+        assert!(queue.next().is_none());
     }
 
     /// A row of the pairs file against `target`.
@@ -684,7 +692,7 @@ mod tests {
         ];
         let rows: Vec<Row> = (1..).zip(targets).map(|(k, t)| row(k, t)).collect();
         let pending: Vec<&Row> = rows.iter().collect();
-        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
+        let models = Models::default();
         let mut queue = Queue::new(&pending, &models);
         let a = Path::new("a.sdfm");
         let (first, cell) = queue.next().unwrap();
@@ -729,7 +737,7 @@ mod tests {
         // With no other row to take, a fresh model's second row is taken at once.
         let rows = [row(1, "a.sdfm"), row(2, "a.sdfm")];
         let pending: Vec<&Row> = rows.iter().collect();
-        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
+        let models = Models::default();
         let mut queue = Queue::new(&pending, &models);
         assert_eq!([taken(&mut queue), taken(&mut queue)], [1, 2]);
     }
@@ -747,7 +755,7 @@ mod tests {
         .unwrap();
         let rows = read_pairs(&pairs, 0).unwrap();
         let pending: Vec<&Row> = rows.iter().collect();
-        let models = Models::new(pending.iter().filter_map(|r| r.model.as_deref()));
+        let models = Models::default();
         let mut queue = Queue::new(&pending, &models);
         let (_, first) = queue.next().unwrap();
         models.ended(&rows[0], true);
