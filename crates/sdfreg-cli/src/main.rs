@@ -21,7 +21,7 @@ use sdfreg_core::geometry::mesh::sample_surface;
 use sdfreg_core::geometry::se3::{isometry_from_matrix, pose_errors};
 use sdfreg_core::io::{
     read_mesh, read_point_cloud, read_point_cloud_dropping_non_finite, write_mesh,
-    write_point_cloud, Format,
+    write_moved_point_cloud, Fields, Format,
 };
 use sdfreg_core::{
     register_with_progress, MeshModel, RegisterSettings, Registration, Role, SdfModel, Stage,
@@ -529,13 +529,10 @@ fn cmd_register(a: RegisterArgs) -> Result<()> {
         None => print!("{}", matrix_text(&m)),
     }
     if let Some(path) = &a.aligned {
-        let moved: Vec<Point3<f64>> = if settings.scale.enabled {
-            let similarity = r.similarity();
-            source.iter().map(|p| similarity * p).collect()
-        } else {
-            source.iter().map(|p| r.t_target_source * p).collect()
-        };
-        write_point_cloud(path, &moved)?;
+        let moved = write_moved_point_cloud(&a.source, path, &r.similarity())?;
+        if let Fields::CoordinatesOnly(why) = &moved.fields {
+            eprintln!("sdfreg: --aligned: {why}; the source's other fields are kept when it has the source's format");
+        }
     }
     for f in &r.degeneracy.free {
         eprintln!(

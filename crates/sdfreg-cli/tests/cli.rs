@@ -58,6 +58,64 @@ const QUICK: [&str; 6] = [
     "5",
 ];
 
+/// `--aligned` in the source's own format writes the source file moved: each row's other
+/// columns as they were, its comment and header lines too, the missing returns at the origin
+/// left there; in another format the coordinates alone, and stderr says so.
+#[test]
+fn the_aligned_source_keeps_its_other_columns_in_its_own_format() {
+    let dir = tempfile::tempdir().unwrap();
+    pair(dir.path());
+    let moved = sdfreg_core::io::read_point_cloud(dir.path().join("src.xyz")).unwrap();
+    let mut text = String::from("x y z intensity\n# from a test\n0 0 0 0\n0 0 0 0\n");
+    for (i, p) in moved.iter().enumerate() {
+        text += &format!("{} {} {} {}\n", p.x, p.y, p.z, i);
+    }
+    let source = dir.path().join("scan.txt");
+    std::fs::write(&source, &text).unwrap();
+    let (matrix, aligned) = (dir.path().join("m.json"), dir.path().join("aligned.txt"));
+    let run = |aligned: &Path| {
+        sdfreg()
+            .arg("register")
+            .arg(&source)
+            .arg(dir.path().join("tgt.ply"))
+            .args(QUICK)
+            .arg("--force")
+            .arg("-o")
+            .arg(&matrix)
+            .arg("--aligned")
+            .arg(aligned)
+            .output()
+            .unwrap()
+    };
+    let out = run(&aligned);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("coordinates only"), "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&matrix).unwrap()).unwrap();
+    let m = sdfreg_core::geometry::se3::matrix_from_rows(&v["transformation"]).unwrap();
+    let written = std::fs::read_to_string(&aligned).unwrap();
+    let lines: Vec<&str> = written.lines().collect();
+    assert_eq!(
+        lines[..4],
+        ["x y z intensity", "# from a test", "0 0 0 0", "0 0 0 0"]
+    );
+    assert_eq!(lines.len(), 4 + moved.len());
+    for (i, (line, p)) in lines[4..].iter().zip(&moved).enumerate() {
+        let v: Vec<f64> = line.split(' ').map(|f| f.parse().unwrap()).collect();
+        let want = (m * p.to_homogeneous()).xyz();
+        assert_eq!(v[3], i as f64, "row {i}: {line}");
+        assert!(
+            (Vector3::new(v[0], v[1], v[2]) - want).norm() < 1e-12,
+            "row {i}: {line} against {want}"
+        );
+    }
+    let out = run(&dir.path().join("aligned.ply"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("holds coordinates only"), "{stderr}");
+}
+
 #[test]
 fn register_prints_the_matrix_and_writes_json_and_aligned_cloud() {
     let dir = tempfile::tempdir().unwrap();

@@ -385,6 +385,50 @@ fn write_point_cloud(py: Python<'_>, path: PathBuf, points: &Bound<'_, PyAny>) -
         .map_err(error::io)
 }
 
+// The Python docstring, kept equal to the one in python/sdfreg/_sdfreg.pyi.
+/// Writes the cloud file ``input`` moved by ``transformation`` (a 4×4 ``[s R | t]`` mapping
+/// its coordinates into the output's, such as a registration's, source into target) to
+/// ``output``. When ``output`` has ``input``'s format, every point keeps its other fields
+/// (intensity, colour, classification, GPS time, extra columns), its normals turned, and the
+/// file its other elements and header records: PLY and PCD (ascii or binary), LAS and LAZ, and
+/// text. Otherwise, or for a PCD ``binary_compressed`` body, integer or list coordinates in a
+/// PLY, or E57, the moved coordinates alone are written, as ``write_point_cloud`` does.
+/// Missing returns at (0, 0, 0) and non-finite points stay as they are. An existing file is
+/// replaced.
+///
+/// Returns:
+///     A dict: ``points`` (written, in the input's order), ``left_in_place`` (missing returns
+///     and non-finite points), ``fields_kept`` (bool) and ``reason`` (why only the coordinates
+///     were written, else ``None``).
+///
+/// Raises:
+///     ValueError: ``transformation`` is not a 4×4 similarity.
+///     OSError: ``input`` cannot be read or is not a valid cloud, or ``output`` cannot be
+///         written, or an extension is unknown.
+#[pyfunction]
+fn write_moved_point_cloud<'py>(
+    py: Python<'py>,
+    input: PathBuf,
+    output: PathBuf,
+    transformation: &Bound<'py, PyAny>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (pose, scale) = convert::similarity(transformation, "transformation")?;
+    let motion = nalgebra::Similarity3::from_isometry(pose, scale);
+    let moved = py
+        .detach(|| sdfreg_core::io::write_moved_point_cloud(&input, &output, &motion))
+        .map_err(error::io)?;
+    let d = PyDict::new(py);
+    d.set_item("points", moved.points)?;
+    d.set_item("left_in_place", moved.left_in_place)?;
+    let reason = match moved.fields {
+        sdfreg_core::io::Fields::Kept => None,
+        sdfreg_core::io::Fields::CoordinatesOnly(why) => Some(why),
+    };
+    d.set_item("fields_kept", reason.is_none())?;
+    d.set_item("reason", reason)?;
+    Ok(d)
+}
+
 /// The native part of the `sdfreg` package.
 #[pymodule]
 fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -400,6 +444,7 @@ fn _sdfreg(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(read_e57_scans, m)?)?;
     m.add_function(wrap_pyfunction!(write_e57_scans, m)?)?;
     m.add_function(wrap_pyfunction!(write_point_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(write_moved_point_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(_core_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(_settings_keywords, m)?)?;
     m.add_function(wrap_pyfunction!(model::fit, m)?)?;

@@ -151,3 +151,52 @@ def test_ascii_ply_as_open3d_writes_it_with_nan_for_missing_returns(tmp_path: Pa
     with pytest.warns(UserWarning, match=r"o\.ply: dropped 1 of 4 points"):
         points = sdfreg.read_point_cloud(tmp_path / "o.ply", drop_non_finite=True)
     np.testing.assert_array_equal(points, [[1, 0.5, -1], [3, 2, 0.5], [4, 2, 1]])
+
+
+def test_a_registered_scan_is_written_moved_with_its_colours_and_missing_returns(
+    tmp_path: Path,
+) -> None:
+    """An organised PCL cloud (binary float32 x y z and rgb, a NaN missing return) registered
+    onto its turned copy and written moved: every row in place, rgb to the bit, NaN kept."""
+    rng = np.random.default_rng(3)
+    points = blob(400, rng)
+    points[7] = np.nan
+    rows = np.zeros(400, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+    rows["x"], rows["y"], rows["z"] = points.T
+    rows["rgb"] = rng.integers(0, 2**24, 400)
+    header = (
+        "VERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\n"
+        "WIDTH 20\nHEIGHT 20\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 400\nDATA binary\n"
+    )
+    source = tmp_path / "scan.pcd"
+    source.write_bytes(header.encode() + rows.tobytes())
+    c, s = np.cos(0.3), np.sin(0.3)
+    truth = np.array([[c, -s, 0, 0.1], [s, c, 0, -0.05], [0, 0, 1, 0.02], [0, 0, 0, 1]])
+    kept = rows[np.isfinite(points).all(axis=1)]
+    as_f64 = np.stack([kept["x"], kept["y"], kept["z"]], axis=1).astype(np.float64)
+    target = as_f64 @ truth[:3, :3].T + truth[:3, 3]
+    result = sdfreg.register(as_f64, target)
+    out = tmp_path / "moved.pcd"
+    report = sdfreg.write_moved_point_cloud(source, out, result.transformation)
+    assert report == {"points": 400, "left_in_place": 1, "fields_kept": True, "reason": None}
+    body = out.read_bytes()
+    start = body.index(b"DATA binary\n") + len(b"DATA binary\n")
+    # The header as it was but for the sensor's pose, moved with the points.
+    lines = body[:start].decode().splitlines()
+    assert lines[:7] + lines[8:] == header.splitlines()[:7] + header.splitlines()[8:]
+    viewpoint = np.array(lines[7].split()[1:], dtype=float)
+    np.testing.assert_allclose(viewpoint[:3], result.transformation[:3, 3], atol=1e-12)
+    moved = np.frombuffer(body[start:], dtype=rows.dtype)
+    np.testing.assert_array_equal(moved["rgb"], rows["rgb"])
+    assert np.isnan(moved["x"][7])
+    got = np.stack([moved["x"], moved["y"], moved["z"]], axis=1).astype(np.float64)
+    want = points.astype(np.float32).astype(np.float64) @ truth[:3, :3].T + truth[:3, 3]
+    ok = np.isfinite(points).all(axis=1)
+    assert np.abs(got[ok] - want[ok]).max() < 1e-4
+    # Another format: the coordinates alone, and why.
+    report = sdfreg.write_moved_point_cloud(source, tmp_path / "moved.xyz", result.transformation)
+    assert report["fields_kept"] is False and "format is not that of" in report["reason"]
+    with pytest.raises(ValueError, match="transformation"):
+        sdfreg.write_moved_point_cloud(source, out, np.eye(3))
+    with pytest.raises(OSError, match=r"missing\.pcd"):
+        sdfreg.write_moved_point_cloud(tmp_path / "missing.pcd", out, np.eye(4))

@@ -18,13 +18,14 @@ use std::io::{Cursor, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use las::{
-    Builder, LazParallelism, Point, PointDataBuilder, ReaderOptions, Transform, Vector,
+    Builder, LazParallelism, Point, PointData, PointDataBuilder, ReaderOptions, Transform, Vector,
     WriterOptions,
 };
 use nalgebra::Point3;
 
 use crate::base::error::IoError;
 use crate::base::pool::in_a_pool;
+use crate::io::moved::Mover;
 
 /// Bytes of points read at a time: a header's point count is not trusted to size an allocation.
 const CHUNK_BYTES: u64 = 4 << 20;
@@ -344,6 +345,29 @@ fn decode(
     decoding: Decoding,
     bytes: u64,
 ) -> Result<Vec<Point3<f64>>, IoError> {
+    let mut points = Vec::new();
+    decode_chunks(path, stream, decoding, bytes, |_, chunk| {
+        points.extend(
+            chunk
+                .x()
+                .zip(chunk.y())
+                .zip(chunk.z())
+                .map(|((x, y), z)| Point3::new(x, y, z)),
+        );
+        Ok(())
+    })?;
+    Ok(points)
+}
+
+/// The records of a LAS stream that [`preflight`] has checked, decoded as it said, `bytes` of
+/// points at a time: each chunk handed to `each` with the file's header, in the file's order.
+fn decode_chunks(
+    path: &Path,
+    stream: impl Read + Seek + Send + Sync + 'static,
+    decoding: Decoding,
+    bytes: u64,
+    mut each: impl FnMut(&las::Header, PointData) -> Result<(), IoError>,
+) -> Result<(), IoError> {
     let parallelism = match decoding {
         Decoding::Parallel => LazParallelism::Yes,
         Decoding::Sequential => LazParallelism::No,
@@ -351,11 +375,12 @@ fn decode(
     let options = ReaderOptions::default().with_laz_parallelism(parallelism);
     let mut reader = las::Reader::with_options(stream, options)
         .map_err(|e| las_error(path, "the LAS header", e))?;
-    let declared = reader.header().number_of_points();
-    let chunk_points = (bytes / u64::from(reader.header().point_format().len()).max(1)).max(1);
-    let mut points = Vec::with_capacity(declared.min(chunk_points) as usize);
-    while (points.len() as u64) < declared {
-        let from = points.len() as u64;
+    let header = reader.header().clone();
+    let declared = header.number_of_points();
+    let chunk_points = (bytes / u64::from(header.point_format().len()).max(1)).max(1);
+    let mut read = 0u64;
+    while read < declared {
+        let from = read;
         let chunk = reader.read_points(chunk_points).map_err(|e| {
             let to = (from + chunk_points).min(declared);
             las_error(
@@ -370,15 +395,10 @@ fn decode(
                 format!("the file ends after {from} of the {declared} points the header declares"),
             ));
         }
-        points.extend(
-            chunk
-                .x()
-                .zip(chunk.y())
-                .zip(chunk.z())
-                .map(|((x, y), z)| Point3::new(x, y, z)),
-        );
+        read += chunk.len() as u64;
+        each(&header, chunk)?;
     }
-    Ok(points)
+    Ok(())
 }
 
 /// The coordinate transform of one axis for values in `lo..=hi`: the offset at their middle
@@ -447,6 +467,148 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
     } else {
         write(false)
     }
+}
+
+/// Whether `vlr` is the LASzip record that a LAZ file's writer adds for its compression.
+fn is_laszip(vlr: &las::Vlr) -> bool {
+    vlr.user_id == "laszip encoded" && vlr.record_id == 22204
+}
+
+/// The transform of one axis for the moved values `lo..=hi`: the file's `scale` (its
+/// resolution) coarsened by powers of ten until the stored integers fit LAS's 32 bits with room
+/// (a turn can carry a fine axis across a long one), the offset at their middle.
+fn moved_transform(scale: f64, lo: f64, hi: f64) -> Transform {
+    let mut scale = if scale.is_finite() && scale > 0.0 {
+        scale
+    } else {
+        1e-3
+    };
+    while (hi - lo) / scale > 2e9 {
+        scale *= 10.0;
+    }
+    let offset = if lo <= hi {
+        ((lo + hi) / 2.0 / scale).round() * scale
+    } else {
+        0.0
+    };
+    Transform { scale, offset }
+}
+
+/// The LAS file `input` (its `points` as [`read`] gave them) with each point moved by `mover`,
+/// as the bytes of `output`: every record's other fields byte for byte (intensity, returns,
+/// classification, GPS time, colour, extra bytes), the header's point format, version and
+/// records (VLRs, EVLRs) as they are; each axis keeps its scale unless the moved extent needs
+/// a coarser one, with the offset at the moved points' middle. LASzip-compressed when `output`
+/// ends in `.laz`, whatever the input was.
+pub(super) fn rewrite_moved(
+    input: &Path,
+    points: &[Point3<f64>],
+    output: &Path,
+    mover: &Mover,
+) -> Result<Vec<u8>, IoError> {
+    let io = |source| IoError::Io {
+        path: input.to_path_buf(),
+        source,
+    };
+    let open = || -> Result<_, IoError> {
+        Ok(std::io::BufReader::with_capacity(
+            1 << 20,
+            std::fs::File::open(input).map_err(io)?,
+        ))
+    };
+    let mut stream = open()?;
+    let decoding = preflight(input, &mut stream)?;
+    stream.seek(SeekFrom::Start(0)).map_err(io)?;
+    let mut lo = Point3::from([f64::INFINITY; 3]);
+    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+    for p in points {
+        let q = mover.point(p);
+        lo = lo.inf(&q);
+        hi = hi.sup(&q);
+    }
+    let writing = |e: las::Error| las_error(output, "cannot write LAS", e);
+    let compressed = output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
+    let bytes = if decoding == Decoding::Parallel {
+        PARALLEL_CHUNK_BYTES
+    } else {
+        CHUNK_BYTES
+    };
+    in_a_pool(|parallel| {
+        let laz = |on: bool| {
+            if on {
+                LazParallelism::Yes
+            } else {
+                LazParallelism::No
+            }
+        };
+        let decoding = if parallel {
+            decoding
+        } else {
+            Decoding::Sequential
+        };
+        let mut writer: Option<(las::Writer<Cursor<Vec<u8>>>, las::Header)> = None;
+        let mut at = 0usize;
+        decode_chunks(input, stream, decoding, bytes, |header, chunk| {
+            if writer.is_none() {
+                let mut builder = Builder::from(header.clone());
+                let t = header.transforms();
+                builder.transforms = Vector {
+                    x: moved_transform(t.x.scale, lo.x, hi.x),
+                    y: moved_transform(t.y.scale, lo.y, hi.y),
+                    z: moved_transform(t.z.scale, lo.z, hi.z),
+                };
+                builder.point_format.is_compressed = compressed;
+                builder.vlrs.retain(|v| !is_laszip(v));
+                builder.evlrs.retain(|v| !is_laszip(v));
+                let out = builder.into_header().map_err(writing)?;
+                let options = WriterOptions::default().with_laz_parallelism(laz(parallel));
+                let w = las::Writer::with_options(Cursor::new(Vec::new()), out.clone(), options)
+                    .map_err(writing)?;
+                writer = Some((w, out));
+            }
+            let Some((w, out)) = writer.as_mut() else {
+                return Ok(());
+            };
+            let to = *out.transforms();
+            let from = header.transforms();
+            let record = chunk.record_len();
+            let mut raw = chunk.raw_bytes().to_vec();
+            for r in raw.chunks_exact_mut(record) {
+                let int = |k: usize| i32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
+                let p = Point3::new(
+                    from.x.direct(int(0)),
+                    from.y.direct(int(4)),
+                    from.z.direct(int(8)),
+                );
+                let q = mover.point(&p);
+                for (k, (v, t)) in [(q.x, to.x), (q.y, to.y), (q.z, to.z)]
+                    .into_iter()
+                    .enumerate()
+                {
+                    let n = t.inverse(v).map_err(|e| {
+                        las_error(
+                            output,
+                            &format!("point {at} moved to ({}, {}, {})", q.x, q.y, q.z),
+                            e,
+                        )
+                    })?;
+                    r[4 * k..4 * k + 4].copy_from_slice(&n.to_le_bytes());
+                }
+                at += 1;
+            }
+            let data = PointDataBuilder::new()
+                .for_header(out)
+                .build_from_bytes(raw)
+                .map_err(writing)?;
+            w.write_points(&data).map_err(writing)
+        })?;
+        let (w, _) = writer.ok_or_else(|| IoError::Empty {
+            path: input.to_path_buf(),
+        })?;
+        Ok(w.into_inner().map_err(writing)?.into_inner())
+    })
 }
 
 #[cfg(test)]

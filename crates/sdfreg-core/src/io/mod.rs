@@ -9,11 +9,13 @@ mod bytes;
 mod e57;
 mod finite;
 mod las;
+mod moved;
 mod pcd;
 mod ply;
 mod xyz;
 
 pub use e57::{E57Scan, E57ScanRef};
+pub use moved::{write_moved_point_cloud, Fields, MovedCloud};
 pub use ply::MeshData;
 
 use std::path::Path;

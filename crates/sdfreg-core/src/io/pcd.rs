@@ -10,6 +10,7 @@ use pcd_rs::record::PcdDeserialize;
 use pcd_rs::Reader;
 
 use crate::base::error::IoError;
+use crate::io::moved::{spelled, Mover};
 
 /// One record as read: only the coordinates are kept.
 struct Xyz([f64; 3]);
@@ -189,6 +190,192 @@ pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {
     let n = points.len();
     let header = format!("# .PCD v0.7 - written by sdfreg\nVERSION 0.7\nFIELDS x y z\nSIZE 8 8 8\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n");
     crate::io::bytes::with_le_doubles(header, points)
+}
+
+/// The PCD file `path` (its `bytes`, in which [`read`] found `n` points) with each point moved
+/// by `mover` and its normal (`normal_x`, `normal_y`, `normal_z`) turned, in their own types,
+/// and its `VIEWPOINT` (the sensor's pose) moved with them; every other field, header line and
+/// byte as they are. An ascii row is written with its numbers one space apart. `Ok(Err(why))`
+/// when the body cannot be rewritten in place: `binary_compressed`, or a coordinate or normal
+/// that is not one float.
+pub(super) fn rewrite_moved(
+    path: &Path,
+    bytes: &[u8],
+    n: usize,
+    mover: &Mover,
+) -> Result<Result<Vec<u8>, String>, IoError> {
+    let parse = |message: String| IoError::parse(path, message);
+    let meta = pcd_rs::metas::PcdMeta::from_reader(bytes)
+        .map_err(|e| parse(format!("not a valid PCD file: {e}")))?;
+    if matches!(meta.data, DataKind::BinaryCompressed) {
+        return Ok(Err("its body is binary_compressed".to_string()));
+    }
+    // The body follows the header's DATA line.
+    let mut body = None;
+    let mut at = 0;
+    for line in bytes.split_inclusive(|&b| b == b'\n') {
+        at += line.len();
+        if line.trim_ascii_start().starts_with(b"DATA") {
+            body = Some(at);
+            break;
+        }
+    }
+    let body = body.ok_or_else(|| parse("no DATA line".into()))?;
+    // Each field's first column (ascii) and byte (binary) in a row.
+    let fields = &meta.field_defs.fields;
+    let (mut column, mut byte) = (Vec::new(), Vec::new());
+    let (mut c, mut b) = (0usize, 0usize);
+    for f in fields {
+        column.push(c);
+        byte.push(b);
+        c += f.count as usize;
+        b += f.kind.byte_size() * f.count as usize;
+    }
+    let (columns, record) = (c, b);
+    let place = |name: &str| -> Result<Option<usize>, String> {
+        match fields.iter().position(|f| f.name == name) {
+            None => Ok(None),
+            Some(k)
+                if fields[k].count == 1
+                    && matches!(fields[k].kind, ValueKind::F32 | ValueKind::F64) =>
+            {
+                Ok(Some(k))
+            }
+            Some(_) => Err(format!("its field `{name}` is not one float")),
+        }
+    };
+    let mut places = Vec::new();
+    for name in ["x", "y", "z", "normal_x", "normal_y", "normal_z"] {
+        match place(name) {
+            Ok(k) => places.push(k),
+            Err(why) => return Ok(Err(why)),
+        }
+    }
+    let [Some(x), Some(y), Some(z), a, b, c] = places[..] else {
+        return Err(parse("no `x`, `y` or `z` field in FIELDS".into()));
+    };
+    let normal = a.zip(b).zip(c).map(|((a, b), c)| [a, b, c]);
+    let read: Vec<usize> = [x, y, z]
+        .into_iter()
+        .chain(normal.into_iter().flatten())
+        .collect();
+    let single = |k: usize| matches!(fields[k].kind, ValueKind::F32);
+    // The new values of one row from its old ones (by field): `None` leaves it.
+    let moved = |get: &dyn Fn(usize) -> f64| -> Option<Vec<(usize, f64)>> {
+        let p = Point3::new(get(x), get(y), get(z));
+        if mover.stays(&p) {
+            return None;
+        }
+        let q = mover.point(&p);
+        let mut out = vec![(x, q.x), (y, q.y), (z, q.z)];
+        if let Some([a, b, c]) = normal {
+            let m = mover.normal(&nalgebra::Vector3::new(get(a), get(b), get(c)));
+            out.extend([(a, m.x), (b, m.y), (c, m.z)]);
+        }
+        Some(out)
+    };
+    let mut out = viewpoint_moved(&bytes[..body], &meta.viewpoint, mover);
+    if matches!(meta.data, DataKind::Ascii) {
+        let mut rows = bytes[body..].split_inclusive(|&b| b == b'\n');
+        for row in 0..n {
+            let raw = rows
+                .next()
+                .ok_or_else(|| parse(format!("the file ends before point {row}")))?;
+            let text =
+                std::str::from_utf8(raw).map_err(|_| parse(format!("point {row} is not text")))?;
+            let line = text.trim_end_matches(['\r', '\n']);
+            let mut tokens: Vec<String> = line.split_whitespace().map(str::to_string).collect();
+            if tokens.len() != columns {
+                return Err(parse(format!(
+                    "point {row}: {} numbers where FIELDS and COUNT declare {columns}: {line:?}",
+                    tokens.len()
+                )));
+            }
+            let mut olds = vec![0.0; fields.len()];
+            for &k in &read {
+                olds[k] = tokens[column[k]].parse::<f64>().map_err(|_| {
+                    parse(format!(
+                        "point {row}: `{}` is not a number: {:?}",
+                        fields[k].name, tokens[column[k]]
+                    ))
+                })?;
+            }
+            match moved(&|k| olds[k]) {
+                None => out.extend_from_slice(raw),
+                Some(new) => {
+                    for (k, v) in new {
+                        tokens[column[k]] = spelled(v, single(k));
+                    }
+                    out.extend_from_slice(tokens.join(" ").as_bytes());
+                    out.extend_from_slice(&raw[line.len()..]);
+                }
+            }
+        }
+        rows.for_each(|rest| out.extend_from_slice(rest));
+        return Ok(Ok(out));
+    }
+    let rows = bytes.get(body..body + record * n).ok_or_else(|| {
+        parse(format!(
+            "the file ends inside its {n} points of {record} bytes"
+        ))
+    })?;
+    for row in rows.chunks_exact(record.max(1)) {
+        let get = |k: usize| {
+            let r = &row[byte[k]..];
+            if single(k) {
+                f32::from_le_bytes([r[0], r[1], r[2], r[3]]) as f64
+            } else {
+                f64::from_le_bytes(r[..8].try_into().unwrap_or_default())
+            }
+        };
+        let mut row = row.to_vec();
+        for (k, v) in moved(&get).unwrap_or_default() {
+            let o = byte[k];
+            if single(k) {
+                row[o..o + 4].copy_from_slice(&(v as f32).to_le_bytes());
+            } else {
+                row[o..o + 8].copy_from_slice(&v.to_le_bytes());
+            }
+        }
+        out.extend_from_slice(&row);
+    }
+    out.extend_from_slice(&bytes[body + rows.len()..]);
+    Ok(Ok(out))
+}
+
+/// A PCD `header` (up to its body) with its `VIEWPOINT` line, the sensor's pose in the cloud's
+/// frame (`viewpoint`), moved by `mover`'s transform; the other lines as they are.
+fn viewpoint_moved(header: &[u8], viewpoint: &pcd_rs::metas::ViewPoint, mover: &Mover) -> Vec<u8> {
+    let v = viewpoint;
+    let t = mover.transform();
+    let at = t * Point3::new(v.tx, v.ty, v.tz);
+    let q = nalgebra::Quaternion::new(v.qw, v.qx, v.qy, v.qz);
+    // A header's zero quaternion is no orientation: taken as none.
+    let q = if q.norm() > 0.0 {
+        nalgebra::UnitQuaternion::from_quaternion(q)
+    } else {
+        nalgebra::UnitQuaternion::identity()
+    };
+    let q = t.isometry.rotation * q;
+    let line = format!(
+        "VIEWPOINT {} {} {} {} {} {} {}",
+        at.x, at.y, at.z, q.w, q.i, q.j, q.k
+    );
+    let mut out = Vec::with_capacity(header.len() + 64);
+    for raw in header.split_inclusive(|&b| b == b'\n') {
+        if raw.starts_with(b"VIEWPOINT") {
+            let end = raw
+                .iter()
+                .rev()
+                .take_while(|&&b| b == b'\n' || b == b'\r')
+                .count();
+            out.extend_from_slice(line.as_bytes());
+            out.extend_from_slice(&raw[raw.len() - end..]);
+        } else {
+            out.extend_from_slice(raw);
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -23,6 +23,7 @@ use ply_rs_bw::ply::{
 
 use crate::base::error::IoError;
 use crate::io::finite::refuse_non_finite;
+use crate::io::moved::{spelled, Mover};
 
 fn number(p: &Property) -> Option<f64> {
     Some(match *p {
@@ -585,6 +586,224 @@ fn triangles<E: Row>(faces: &[E], n: usize) -> Result<Vec<[usize; 3]>, String> {
         }
     }
     Ok(out)
+}
+
+/// The size of a scalar property in bytes.
+fn scalar_size(t: &ScalarType) -> usize {
+    match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    }
+}
+
+/// The PLY file `path` (its `bytes`, whose `vertex` element [`read`] found to hold `n` rows)
+/// with each vertex moved by `mover` and its normal (`nx`, `ny`, `nz`) turned, in their own
+/// types; every other property, element, header line and byte as they are. An ascii row is
+/// written with its numbers one space apart. `Ok(Err(why))` when the layout cannot be
+/// rewritten in place: a list property in `vertex`, an integer coordinate or normal, or (binary)
+/// an element of lists before `vertex`.
+pub(super) fn rewrite_moved(
+    path: &Path,
+    bytes: &[u8],
+    n: usize,
+    mover: &Mover,
+) -> Result<Result<Vec<u8>, String>, IoError> {
+    let mut reader = Counting {
+        inner: bytes,
+        bytes: 0,
+        line_ends: 0,
+        lines: true,
+    };
+    let header = Parser::<Xyz>::new()
+        .read_header(&mut reader)
+        .map_err(|e| header_error(path, &e))?;
+    let (start, mut line) = (reader.bytes as usize, reader.line_ends);
+    let Some(vertex) = header.elements.get("vertex") else {
+        return Err(parse_error(
+            path,
+            None,
+            "no `vertex` element in the header".into(),
+        ));
+    };
+    // Each property's type, and the rewritten ones' places among them.
+    let mut types = Vec::new();
+    for p in vertex.properties.values() {
+        match &p.data_type {
+            PropertyType::Scalar(t) => types.push(t.clone()),
+            PropertyType::List(..) => {
+                return Ok(Err(format!(
+                    "its `vertex` element has a list property ({})",
+                    p.name
+                )))
+            }
+        }
+    }
+    let place = |name: &str| vertex.properties.keys().position(|k| k == name);
+    let xyz = [place("x"), place("y"), place("z")];
+    let normal = [place("nx"), place("ny"), place("nz")];
+    let normal = normal.iter().all(Option::is_some).then_some(normal);
+    for k in xyz.iter().chain(normal.iter().flatten()).flatten() {
+        if !matches!(types[*k], ScalarType::Float | ScalarType::Double) {
+            return Ok(Err(format!(
+                "its `vertex` property `{}` is an integer",
+                vertex.properties.keys().nth(*k).map_or("", |s| s.as_str())
+            )));
+        }
+    }
+    let [Some(x), Some(y), Some(z)] = xyz else {
+        return Err(parse_error(
+            path,
+            None,
+            "the `vertex` element lacks x, y or z".into(),
+        ));
+    };
+    let normal = normal.map(|[a, b, c]| [a.unwrap_or(0), b.unwrap_or(0), c.unwrap_or(0)]);
+    let read: Vec<usize> = [x, y, z]
+        .into_iter()
+        .chain(normal.into_iter().flatten())
+        .collect();
+    // The new values of one row from its old ones (by property place): `None` leaves it.
+    let moved = |get: &dyn Fn(usize) -> f64| -> Option<Vec<(usize, f64)>> {
+        let p = Point3::new(get(x), get(y), get(z));
+        if mover.stays(&p) {
+            return None;
+        }
+        let q = mover.point(&p);
+        let mut out = vec![(x, q.x), (y, q.y), (z, q.z)];
+        if let Some([a, b, c]) = normal {
+            let m = mover.normal(&nalgebra::Vector3::new(get(a), get(b), get(c)));
+            out.extend([(a, m.x), (b, m.y), (c, m.z)]);
+        }
+        Some(out)
+    };
+    let mut out = bytes[..start].to_vec();
+    let body = &bytes[start..];
+    if header.encoding == Encoding::Ascii {
+        let mut rows = body.split_inclusive(|&b| b == b'\n');
+        for (name, def) in &header.elements {
+            for row in 0..def.count {
+                line += 1;
+                let Some(raw) = rows.next() else {
+                    return Err(parse_error(
+                        path,
+                        Some(line),
+                        format!("the file ends inside `{name}` row {row}"),
+                    ));
+                };
+                if name != "vertex" {
+                    out.extend_from_slice(raw);
+                    continue;
+                }
+                let text = std::str::from_utf8(raw).map_err(|_| {
+                    parse_error(path, Some(line), format!("`vertex` row {row} is not text"))
+                })?;
+                let body = text.trim_end_matches(['\r', '\n']);
+                let mut tokens: Vec<Cow<'_, str>> =
+                    body.split_whitespace().map(Cow::Borrowed).collect();
+                let value = |k: usize| {
+                    tokens
+                        .get(k)
+                        .and_then(|t| t.parse::<f64>().ok())
+                        .ok_or_else(|| {
+                            parse_error(
+                                path,
+                                Some(line),
+                                format!(
+                                    "`vertex` row {row}: expected a number for `{}`, found {:?}",
+                                    vertex.properties.keys().nth(k).map_or("", |s| s.as_str()),
+                                    body
+                                ),
+                            )
+                        })
+                };
+                let mut olds = vec![0.0; types.len()];
+                for &k in &read {
+                    olds[k] = value(k)?;
+                }
+                match moved(&|k| olds[k]) {
+                    None => out.extend_from_slice(raw),
+                    Some(new) => {
+                        for (k, v) in new {
+                            tokens[k] = Cow::Owned(spelled(v, types[k] == ScalarType::Float));
+                        }
+                        out.extend_from_slice(tokens.join(" ").as_bytes());
+                        out.extend_from_slice(&raw[body.len()..]);
+                    }
+                }
+            }
+        }
+        for rest in rows {
+            out.extend_from_slice(rest);
+        }
+        return Ok(Ok(out));
+    }
+    let big = header.encoding == Encoding::BinaryBigEndian;
+    let mut at = 0usize;
+    for (name, def) in &header.elements {
+        let Some(size) = row_size(def) else {
+            if name == "vertex" {
+                break;
+            }
+            return Ok(Err(format!(
+                "its element `{name}`, before `vertex`, has lists"
+            )));
+        };
+        if name != "vertex" {
+            at += (size as usize).saturating_mul(def.count);
+            continue;
+        }
+        let offsets: Vec<usize> = types
+            .iter()
+            .scan(0, |o, t| {
+                let here = *o;
+                *o += scalar_size(t);
+                Some(here)
+            })
+            .collect();
+        let rows = body.get(at..at + size as usize * n).ok_or_else(|| {
+            parse_error(
+                path,
+                None,
+                format!("the file ends inside its {n} `vertex` rows"),
+            )
+        })?;
+        out.extend_from_slice(&body[..at]);
+        for row in rows.chunks_exact(size as usize) {
+            let get = |k: usize| {
+                let b = &row[offsets[k]..];
+                match (&types[k], big) {
+                    (ScalarType::Float, false) => {
+                        f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64
+                    }
+                    (ScalarType::Float, true) => {
+                        f32::from_be_bytes([b[0], b[1], b[2], b[3]]) as f64
+                    }
+                    (_, false) => f64::from_le_bytes(b[..8].try_into().unwrap_or_default()),
+                    (_, true) => f64::from_be_bytes(b[..8].try_into().unwrap_or_default()),
+                }
+            };
+            let mut row = row.to_vec();
+            for (k, v) in moved(&get).unwrap_or_default() {
+                let o = offsets[k];
+                match (&types[k], big) {
+                    (ScalarType::Float, false) => {
+                        row[o..o + 4].copy_from_slice(&(v as f32).to_le_bytes())
+                    }
+                    (ScalarType::Float, true) => {
+                        row[o..o + 4].copy_from_slice(&(v as f32).to_be_bytes())
+                    }
+                    (_, false) => row[o..o + 8].copy_from_slice(&v.to_le_bytes()),
+                    (_, true) => row[o..o + 8].copy_from_slice(&v.to_be_bytes()),
+                }
+            }
+            out.extend_from_slice(&row);
+        }
+        out.extend_from_slice(&body[at + rows.len()..]);
+        return Ok(Ok(out));
+    }
+    Ok(Err("its `vertex` rows could not be found".to_string()))
 }
 
 pub(super) fn encode(points: &[Point3<f64>]) -> Vec<u8> {

@@ -11,6 +11,7 @@ use std::path::Path;
 use nalgebra::Point3;
 
 use crate::base::error::IoError;
+use crate::io::moved::{spelled, Mover};
 
 /// Parses `x y z` lines; a non-finite coordinate is an error naming its line unless
 /// `keep_non_finite`.
@@ -27,16 +28,9 @@ pub(super) fn read(
     // The open `.pts` block: its count line and count, and the points before it.
     let mut block: Option<Block> = None;
     for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
-            continue;
-        }
-        let fields: Vec<&str> = line
-            .split(|c: char| c == ',' || c.is_whitespace())
-            .filter(|f| !f.is_empty())
-            .collect();
-        if let (true, [count]) = (pts, fields.as_slice()) {
-            if let Ok(count) = count.parse::<usize>() {
+        let fields = match classify(raw, pts, seen_data_line) {
+            Kind::Skipped => continue,
+            Kind::Count(count) => {
                 close_block(path, block.take(), points.len())?;
                 block = Some(Block {
                     line: i + 1,
@@ -46,25 +40,20 @@ pub(super) fn read(
                 seen_data_line = true;
                 continue;
             }
-        }
-        let parsed: Vec<Option<f64>> = fields
-            .iter()
-            .take(3)
-            .map(|f| f.parse::<f64>().ok())
-            .collect();
-        if !seen_data_line && parsed.iter().all(|v| v.is_none()) {
-            seen_data_line = true; // a header
-            continue;
-        }
+            Kind::Header => {
+                seen_data_line = true;
+                continue;
+            }
+            Kind::Row(fields) => fields,
+        };
         seen_data_line = true;
-        if parsed.len() < 3 || parsed.iter().any(|v| v.is_none()) {
+        let Some(p) = coordinates(&fields) else {
             return Err(IoError::Parse {
                 path: path.into(),
                 line: Some(i + 1),
-                message: format!("expected three numbers (x y z), found {line:?}"),
+                message: format!("expected three numbers (x y z), found {:?}", raw.trim()),
             });
-        }
-        let p = Point3::new(parsed[0].unwrap(), parsed[1].unwrap(), parsed[2].unwrap());
+        };
         if !keep_non_finite && !p.coords.iter().all(|v| v.is_finite()) {
             return Err(IoError::NonFinite {
                 path: path.into(),
@@ -76,6 +65,94 @@ pub(super) fn read(
     }
     close_block(path, block, points.len())?;
     Ok(points)
+}
+
+/// What a line of a text cloud is ([`classify`]).
+enum Kind<'a> {
+    /// Empty, or a comment (`#`, `//`).
+    Skipped,
+    /// A `.pts` block's point count.
+    Count(usize),
+    /// A column header: the first line that is not skipped, when its first three fields are
+    /// not numbers.
+    Header,
+    /// A point's row: its fields.
+    Row(Vec<&'a str>),
+}
+
+/// What `raw` (a line without its end) is, in a `.pts` file (`pts`) or not, after a line that
+/// was not skipped (`seen`) or not.
+fn classify(raw: &str, pts: bool, seen: bool) -> Kind<'_> {
+    let line = raw.trim();
+    if line.is_empty() || line.starts_with('#') || line.starts_with("//") {
+        return Kind::Skipped;
+    }
+    let fields: Vec<&str> = line
+        .split(|c: char| c == ',' || c.is_whitespace())
+        .filter(|f| !f.is_empty())
+        .collect();
+    if let (true, [count]) = (pts, fields.as_slice()) {
+        if let Ok(count) = count.parse::<usize>() {
+            return Kind::Count(count);
+        }
+    }
+    if !seen && fields.iter().take(3).all(|f| f.parse::<f64>().is_err()) {
+        return Kind::Header;
+    }
+    Kind::Row(fields)
+}
+
+/// The point of a row's `fields` (its first three), if they are three numbers.
+fn coordinates(fields: &[&str]) -> Option<Point3<f64>> {
+    let [x, y, z] = [0, 1, 2].map(|k| fields.get(k).and_then(|f| f.parse::<f64>().ok()));
+    Some(Point3::new(x?, y?, z?))
+}
+
+/// The text cloud `path` (its `bytes`, which [`read`] accepted) with each row's first three
+/// columns moved by `mover`; every other column, separator, comment, header and count line as
+/// written (a text file does not say which columns are normals: they are not turned).
+pub(super) fn rewrite_moved(path: &Path, bytes: &[u8], mover: &Mover) -> Result<Vec<u8>, IoError> {
+    let text = std::str::from_utf8(bytes)
+        .map_err(|e| IoError::parse(path, format!("not UTF-8 text (byte {})", e.valid_up_to())))?;
+    let pts = is_pts(path);
+    let mut out = String::with_capacity(text.len() + text.len() / 4);
+    let mut seen = false;
+    for (i, raw) in text.split_inclusive('\n').enumerate() {
+        let line = raw.trim_end_matches(['\r', '\n']);
+        let fields = match classify(line, pts, seen) {
+            Kind::Skipped => {
+                out.push_str(raw);
+                continue;
+            }
+            Kind::Count(_) | Kind::Header => {
+                seen = true;
+                out.push_str(raw);
+                continue;
+            }
+            Kind::Row(fields) => fields,
+        };
+        seen = true;
+        let p = coordinates(&fields).ok_or_else(|| IoError::Parse {
+            path: path.into(),
+            line: Some(i + 1),
+            message: format!("expected three numbers (x y z), found {:?}", line.trim()),
+        })?;
+        if mover.stays(&p) {
+            out.push_str(raw);
+            continue;
+        }
+        let q = mover.point(&p);
+        // The three fields' places in the line (they are slices of it).
+        let mut at = 0;
+        for (f, v) in fields.iter().zip([q.x, q.y, q.z]) {
+            let start = f.as_ptr() as usize - line.as_ptr() as usize;
+            out.push_str(&line[at..start]);
+            out.push_str(&spelled(v, false));
+            at = start + f.len();
+        }
+        out.push_str(&raw[at..]);
+    }
+    Ok(out.into_bytes())
 }
 
 /// A `.pts` block: the line of its count, the count, and the points read before it.

@@ -42,6 +42,7 @@ from ._sdfreg import (
     read_poses,
     register,
     register_many,
+    write_moved_point_cloud,
     write_point_cloud,
 )
 
@@ -74,5 +75,6 @@ __all__ = [
     "read_poses",
     "register",
     "register_many",
+    "write_moved_point_cloud",
     "write_point_cloud",
 ]

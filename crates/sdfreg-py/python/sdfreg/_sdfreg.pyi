@@ -57,6 +57,7 @@ __all__ = [
     "register",
     "register_many",
     "write_e57_scans",
+    "write_moved_point_cloud",
     "write_point_cloud",
 ]
 
@@ -1240,6 +1241,30 @@ def write_point_cloud(path: _PathLike, points: npt.ArrayLike) -> None:
     Raises:
         ValueError: ``points`` is not an (N, 3) float array or has a non-finite coordinate.
         OSError: the file cannot be written or the extension is unknown.
+    """
+
+def write_moved_point_cloud(
+    input: _PathLike, output: _PathLike, transformation: npt.ArrayLike
+) -> Dict[str, Any]:
+    """Writes the cloud file ``input`` moved by ``transformation`` (a 4×4 ``[s R | t]`` mapping
+    its coordinates into the output's, such as a registration's, source into target) to
+    ``output``. When ``output`` has ``input``'s format, every point keeps its other fields
+    (intensity, colour, classification, GPS time, extra columns), its normals turned, and the
+    file its other elements and header records: PLY and PCD (ascii or binary), LAS and LAZ, and
+    text. Otherwise, or for a PCD ``binary_compressed`` body, integer or list coordinates in a
+    PLY, or E57, the moved coordinates alone are written, as ``write_point_cloud`` does.
+    Missing returns at (0, 0, 0) and non-finite points stay as they are. An existing file is
+    replaced.
+
+    Returns:
+        A dict: ``points`` (written, in the input's order), ``left_in_place`` (missing returns
+        and non-finite points), ``fields_kept`` (bool) and ``reason`` (why only the coordinates
+        were written, else ``None``).
+
+    Raises:
+        ValueError: ``transformation`` is not a 4×4 similarity.
+        OSError: ``input`` cannot be read or is not a valid cloud, or ``output`` cannot be
+            written, or an extension is unknown.
     """
 
 def _core_defaults() -> Dict[str, Any]:
