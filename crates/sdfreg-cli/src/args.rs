@@ -40,6 +40,11 @@ pub enum Command {
     /// the share of SOURCE's points within --max-distance of a TARGET point (fitness) and their
     /// RMS distance, as Open3D's evaluate_registration reports them; no registration is run.
     Fitness(FitnessArgs),
+    /// Write INPUT moved by a 4×4 transformation to OUTPUT, each point's other fields (intensity,
+    /// colour, classification, GPS time, normals turned) kept when OUTPUT has INPUT's format:
+    /// a full-resolution scan placed by the pose found on a thinned copy, a scan placed by its
+    /// pose in `align`'s poses.json.
+    Transform(TransformArgs),
 }
 
 /// The robust kernel's modes (`RobustMode`), as flags name them.
@@ -563,4 +568,23 @@ pub struct FitnessArgs {
     pub seed: u64,
     #[command(flatten)]
     pub input: InputArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct TransformArgs {
+    /// The cloud file to move (.ply, .pcd, .las, .laz, .e57, .xyz, .txt, .csv, .pts).
+    pub input: PathBuf,
+    /// Where to write it moved; in INPUT's format every other field is kept, in another the
+    /// coordinates alone.
+    pub output: PathBuf,
+    /// The 4×4 `[s R | t]` mapping INPUT's coordinates into OUTPUT's: a text file of 16 numbers
+    /// (what `register` prints), or `register --output`'s .json.
+    #[arg(long, short)]
+    pub transformation: PathBuf,
+    /// Apply the inverse of --transformation (a target moved into its source's frame).
+    #[arg(long)]
+    pub inverse: bool,
+    /// Overwrite OUTPUT if it exists.
+    #[arg(long)]
+    pub force: bool,
 }

@@ -31,6 +31,7 @@ use output::{matrix_text, registration_json, summary_line};
 
 use args::{
     Cli, Command, DemoArgs, FitArgs, FitnessArgs, InputArgs, MeshArgs, RegisterArgs, TrackArgs,
+    TransformArgs,
 };
 
 fn main() -> ExitCode {
@@ -45,6 +46,7 @@ fn main() -> ExitCode {
         Command::Eval(a) => eval::run(a),
         Command::Align(a) => align::run(a),
         Command::Fitness(a) => cmd_fitness(a),
+        Command::Transform(a) => cmd_transform(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -396,6 +398,35 @@ fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
             path.display()
         ),
     }
+}
+
+/// `sdfreg transform`: INPUT moved by the transformation (or its inverse) to OUTPUT.
+fn cmd_transform(a: TransformArgs) -> Result<()> {
+    refuse_overwrite(&a.output, &[a.input.as_path()], a.force)?;
+    let m = read_transformation(&a.transformation)?;
+    let (rigid, scale) = sdfreg_core::geometry::se3::similarity_from_matrix(&m).with_context(|| {
+        format!(
+            "{}: the matrix is not a similarity (its 3×3 block must be a positive scale times a rotation, its last row 0 0 0 1)",
+            a.transformation.display()
+        )
+    })?;
+    let mut motion = nalgebra::Similarity3::from_isometry(rigid, scale);
+    if a.inverse {
+        motion = motion.inverse();
+    }
+    let moved = write_moved_point_cloud(&a.input, &a.output, &motion)?;
+    let kept = match &moved.fields {
+        Fields::Kept => "every other field kept".to_string(),
+        Fields::CoordinatesOnly(why) => why.clone(),
+    };
+    eprintln!(
+        "sdfreg: {}: {} points of {} moved ({} left in place: missing returns at the origin, non-finite); {kept}",
+        a.output.display(),
+        moved.points - moved.left_in_place,
+        a.input.display(),
+        moved.left_in_place
+    );
+    Ok(())
 }
 
 fn cmd_mesh(a: MeshArgs) -> Result<()> {

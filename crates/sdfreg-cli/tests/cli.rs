@@ -1752,3 +1752,84 @@ fn fitness_against_a_model_or_a_mesh() {
         assert!(err.contains(says), "{err}");
     }
 }
+
+/// `sdfreg transform` writes a file moved by a 4×4 with its other fields, and back with
+/// `--inverse`; it refuses to overwrite without --force and names a matrix that is no
+/// similarity.
+#[test]
+fn transform_moves_a_file_with_its_fields_and_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut ply = String::from("ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\nproperty uchar red\nend_header\n");
+    let points = [[1.0, 2.0, 3.0], [-0.5, 0.25, 4.0], [0.0, 1.0, -2.0]];
+    for (i, p) in points.iter().enumerate() {
+        ply += &format!("{} {} {} {}\n", p[0], p[1], p[2], 10 + i);
+    }
+    let (input, moved, back) = (
+        dir.path().join("in.ply"),
+        dir.path().join("moved.ply"),
+        dir.path().join("back.ply"),
+    );
+    std::fs::write(&input, &ply).unwrap();
+    // 2 × a quarter turn about z, then a shift.
+    let matrix = dir.path().join("m.txt");
+    std::fs::write(&matrix, "0 -2 0 1\n2 0 0 -1\n0 0 2 0.5\n0 0 0 1\n").unwrap();
+    let run = |from: &Path, to: &Path, extra: &[&str]| {
+        sdfreg()
+            .arg("transform")
+            .arg(from)
+            .arg(to)
+            .arg("-t")
+            .arg(&matrix)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = run(&input, &moved, &[]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("3 points of") && stderr.contains("every other field kept"),
+        "{stderr}"
+    );
+    // Each row: the point moved (to the rounding of the matrix's decomposition), its colour.
+    let rows = |path: &Path| -> Vec<Vec<f64>> {
+        let text = std::fs::read_to_string(path).unwrap();
+        assert!(text.starts_with(&ply[..ply.find("end_header").unwrap()]));
+        text.lines()
+            .skip(8)
+            .map(|row| row.split(' ').map(|f| f.parse().unwrap()).collect())
+            .collect()
+    };
+    for (v, (p, i)) in rows(&moved).iter().zip(points.iter().zip(10..)) {
+        let want = [-2.0 * p[1] + 1.0, 2.0 * p[0] - 1.0, 2.0 * p[2] + 0.5];
+        assert!(
+            (0..3).all(|k| (v[k] - want[k]).abs() < 1e-12),
+            "{v:?} against {want:?}"
+        );
+        assert_eq!(v[3], i as f64);
+    }
+    let out = run(&moved, &back, &["--inverse"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (v, (p, i)) in rows(&back).iter().zip(points.iter().zip(10..)) {
+        assert!(
+            (0..3).all(|k| (v[k] - p[k]).abs() < 1e-12),
+            "{v:?} against {p:?}"
+        );
+        assert_eq!(v[3], i as f64);
+    }
+    let out = run(&moved, &back, &["--inverse"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("back.ply: exists; pass --force"));
+    std::fs::write(&matrix, "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
+    let out = run(&input, &back, &["--force"]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("m.txt: the matrix is not a similarity"),
+        "{stderr}"
+    );
+}

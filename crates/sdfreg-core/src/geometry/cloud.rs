@@ -71,12 +71,19 @@ pub(crate) fn subsample(
 /// nothing, 7 % of each scan of the outdoor pair in `../shared/data/lidar`). Left in, they pile
 /// up in both clouds at the sensor's origin and hold a registration at the identity.
 pub fn missing_returns(points: &[Point3<f64>]) -> usize {
-    let n = points
-        .iter()
-        .filter(|p| p.coords == Vector3::zeros())
-        .count();
-    if n >= 2 {
-        n
+    missing_returns_of(
+        points
+            .iter()
+            .filter(|p| p.coords == Vector3::zeros())
+            .count(),
+    )
+}
+
+/// Of `at_origin` points at exactly (0, 0, 0), how many are [`missing_returns`]: all of them
+/// when there are at least two, else none.
+pub fn missing_returns_of(at_origin: usize) -> usize {
+    if at_origin >= 2 {
+        at_origin
     } else {
         0
     }

@@ -21,11 +21,11 @@ use las::{
     Builder, LazParallelism, Point, PointData, PointDataBuilder, ReaderOptions, Transform, Vector,
     WriterOptions,
 };
-use nalgebra::Point3;
+use nalgebra::{Point3, Similarity3, Vector3};
 
 use crate::base::error::IoError;
 use crate::base::pool::in_a_pool;
-use crate::io::moved::Mover;
+use crate::io::moved::{Fields, MovedCloud, Mover};
 
 /// Bytes of points read at a time: a header's point count is not trusted to size an allocation.
 const CHUNK_BYTES: u64 = 4 << 20;
@@ -54,6 +54,13 @@ fn las_error(path: &Path, what: &str, e: las::Error) -> IoError {
         las::Error::InvalidFileSignature(first) => format!(
             "not a LAS file: it begins with {:?}, where LAS files begin with \"LASF\"",
             String::from_utf8_lossy(&first)
+        ),
+        las::Error::ReturnNumber {
+            return_number,
+            version: Some(v),
+        } => format!(
+            "{what}: a record claims return {return_number}, which a LAS {}.{} header cannot count (LAS 1.4 counts up to 15)",
+            v.major, v.minor
         ),
         e => format!("{what}: {e}"),
     };
@@ -469,6 +476,46 @@ pub(super) fn encode(path: &Path, points: &[Point3<f64>]) -> Result<Vec<u8>, IoE
     }
 }
 
+/// A las-rs writer that never panics: las-rs's closes itself when dropped and panics when that
+/// fails (a LAS 1.2 header cannot count the records of a return above the fifth, which a
+/// damaged or non-conforming file's records may claim); this one is closed by hand, and left
+/// unclosed (forgotten) when closing fails.
+struct Closing(Option<las::Writer<Cursor<Vec<u8>>>>);
+
+impl Closing {
+    /// Writes `points` (see [`las::Writer::write_points`]).
+    fn write_points(&mut self, points: &PointData) -> Result<(), las::Error> {
+        match &mut self.0 {
+            Some(w) => w.write_points(points),
+            None => Err(las::Error::ClosedWriter),
+        }
+    }
+
+    /// The file's bytes, the writer closed.
+    fn finish(mut self) -> Result<Vec<u8>, las::Error> {
+        let Some(mut w) = self.0.take() else {
+            return Err(las::Error::ClosedWriter);
+        };
+        match w.close() {
+            Ok(()) => Ok(w.into_inner()?.into_inner()),
+            Err(e) => {
+                std::mem::forget(w);
+                Err(e)
+            }
+        }
+    }
+}
+
+impl Drop for Closing {
+    fn drop(&mut self) {
+        if let Some(mut w) = self.0.take() {
+            if w.close().is_err() {
+                std::mem::forget(w);
+            }
+        }
+    }
+}
+
 /// Whether `vlr` is the LASzip record that a LAZ file's writer adds for its compression.
 fn is_laszip(vlr: &las::Vlr) -> bool {
     vlr.user_id == "laszip encoded" && vlr.record_id == 22204
@@ -494,87 +541,115 @@ fn moved_transform(scale: f64, lo: f64, hi: f64) -> Transform {
     Transform { scale, offset }
 }
 
-/// The LAS file `input` (its `points` as [`read`] gave them) with each point moved by `mover`,
-/// as the bytes of `output`: every record's other fields byte for byte (intensity, returns,
-/// classification, GPS time, colour, extra bytes), the header's point format, version and
-/// records (VLRs, EVLRs) as they are; each axis keeps its scale unless the moved extent needs
-/// a coarser one, with the offset at the moved points' middle. LASzip-compressed when `output`
-/// ends in `.laz`, whatever the input was.
+/// The LAS file `input` with each point moved by `transform` (see [`Mover`]), as the bytes of
+/// `output`, and what was written: every record's other fields byte for byte (intensity,
+/// returns, classification, GPS time, colour, extra bytes), the header's point format, version
+/// and records (VLRs, EVLRs) as they are; each axis keeps its scale unless the moved extent
+/// needs a coarser one, with the offset at the moved points' middle. LASzip-compressed when
+/// `output` ends in `.laz`, whatever the input was. The file is decoded once (checked as
+/// [`read`] checks it), its records held until they are written.
 pub(super) fn rewrite_moved(
     input: &Path,
-    points: &[Point3<f64>],
     output: &Path,
-    mover: &Mover,
-) -> Result<Vec<u8>, IoError> {
-    let io = |source| IoError::Io {
-        path: input.to_path_buf(),
-        source,
-    };
-    let open = || -> Result<_, IoError> {
-        Ok(std::io::BufReader::with_capacity(
-            1 << 20,
-            std::fs::File::open(input).map_err(io)?,
-        ))
-    };
-    let mut stream = open()?;
+    transform: &Similarity3<f64>,
+) -> Result<(Vec<u8>, MovedCloud), IoError> {
+    let (file, _) = super::open(input)?;
+    let mut stream = std::io::BufReader::with_capacity(1 << 20, file);
     let decoding = preflight(input, &mut stream)?;
-    stream.seek(SeekFrom::Start(0)).map_err(io)?;
-    let mut lo = Point3::from([f64::INFINITY; 3]);
-    let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
-    for p in points {
-        let q = mover.point(p);
-        lo = lo.inf(&q);
-        hi = hi.sup(&q);
-    }
     let writing = |e: las::Error| las_error(output, "cannot write LAS", e);
     let compressed = output
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
-    let bytes = if decoding == Decoding::Parallel {
-        PARALLEL_CHUNK_BYTES
-    } else {
-        CHUNK_BYTES
-    };
     in_a_pool(|parallel| {
-        let laz = |on: bool| {
-            if on {
-                LazParallelism::Yes
-            } else {
-                LazParallelism::No
-            }
+        let (decoding, bytes) = match (parallel, decoding) {
+            (true, Decoding::Parallel) => (Decoding::Parallel, PARALLEL_CHUNK_BYTES),
+            _ => (Decoding::Sequential, CHUNK_BYTES),
         };
-        let decoding = if parallel {
-            decoding
+        let mut header = None;
+        let mut chunks = Vec::new();
+        decode_chunks(input, stream, decoding, bytes, |h, chunk| {
+            header.get_or_insert_with(|| h.clone());
+            chunks.push(chunk);
+            Ok(())
+        })?;
+        let header = header.ok_or_else(|| IoError::Empty {
+            path: input.to_path_buf(),
+        })?;
+        // A header before LAS 1.4 counts five returns: a record claiming a later one (a
+        // damaged or non-conforming file) could be read but not written back.
+        if header.version() < las::Version::new(1, 4) {
+            let mut at = 0usize;
+            for c in &chunks {
+                if let Some(k) = c.return_number().position(|r| r > 5) {
+                    let v = header.version();
+                    return Err(IoError::parse(
+                        input,
+                        format!(
+                            "point {}: a record claims return {}, which its LAS {}.{} header cannot count: it cannot be written back as it is",
+                            at + k,
+                            c.return_number().nth(k).unwrap_or_default(),
+                            v.major,
+                            v.minor
+                        ),
+                    ));
+                }
+                at += c.len();
+            }
+        }
+        let xyz = |c: &PointData| {
+            let (x, y, z) = (c.x().collect::<Vec<_>>(), c.y(), c.z());
+            x.into_iter()
+                .zip(y)
+                .zip(z)
+                .map(|((x, y), z)| Point3::new(x, y, z))
+                .collect::<Vec<_>>()
+        };
+        let at_origin = chunks
+            .iter()
+            .map(|c| {
+                xyz(c)
+                    .iter()
+                    .filter(|p| p.coords == Vector3::zeros())
+                    .count()
+            })
+            .sum();
+        let mover = Mover::with_origins(transform, at_origin);
+        let mut lo = Point3::from([f64::INFINITY; 3]);
+        let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
+        for c in &chunks {
+            for p in xyz(c) {
+                let q = mover.point(&p);
+                lo = lo.inf(&q);
+                hi = hi.sup(&q);
+            }
+        }
+        let mut builder = Builder::from(header.clone());
+        let t = header.transforms();
+        builder.transforms = Vector {
+            x: moved_transform(t.x.scale, lo.x, hi.x),
+            y: moved_transform(t.y.scale, lo.y, hi.y),
+            z: moved_transform(t.z.scale, lo.z, hi.z),
+        };
+        builder.point_format.is_compressed = compressed;
+        builder.vlrs.retain(|v| !is_laszip(v));
+        builder.evlrs.retain(|v| !is_laszip(v));
+        let out = builder.into_header().map_err(writing)?;
+        let laz = if parallel {
+            LazParallelism::Yes
         } else {
-            Decoding::Sequential
+            LazParallelism::No
         };
-        let mut writer: Option<(las::Writer<Cursor<Vec<u8>>>, las::Header)> = None;
-        let mut at = 0usize;
-        decode_chunks(input, stream, decoding, bytes, |header, chunk| {
-            if writer.is_none() {
-                let mut builder = Builder::from(header.clone());
-                let t = header.transforms();
-                builder.transforms = Vector {
-                    x: moved_transform(t.x.scale, lo.x, hi.x),
-                    y: moved_transform(t.y.scale, lo.y, hi.y),
-                    z: moved_transform(t.z.scale, lo.z, hi.z),
-                };
-                builder.point_format.is_compressed = compressed;
-                builder.vlrs.retain(|v| !is_laszip(v));
-                builder.evlrs.retain(|v| !is_laszip(v));
-                let out = builder.into_header().map_err(writing)?;
-                let options = WriterOptions::default().with_laz_parallelism(laz(parallel));
-                let w = las::Writer::with_options(Cursor::new(Vec::new()), out.clone(), options)
-                    .map_err(writing)?;
-                writer = Some((w, out));
-            }
-            let Some((w, out)) = writer.as_mut() else {
-                return Ok(());
-            };
-            let to = *out.transforms();
-            let from = header.transforms();
+        let options = WriterOptions::default().with_laz_parallelism(laz);
+        let mut writer = Closing(Some(
+            las::Writer::with_options(Cursor::new(Vec::new()), out.clone(), options)
+                .map_err(writing)?,
+        ));
+        let (from, to) = (t, *out.transforms());
+        let (mut at, mut left) = (0usize, 0usize);
+        for chunk in chunks {
             let record = chunk.record_len();
             let mut raw = chunk.raw_bytes().to_vec();
+            drop(chunk);
             for r in raw.chunks_exact_mut(record) {
                 let int = |k: usize| i32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
                 let p = Point3::new(
@@ -582,32 +657,35 @@ pub(super) fn rewrite_moved(
                     from.y.direct(int(4)),
                     from.z.direct(int(8)),
                 );
+                left += usize::from(mover.stays(&p));
                 let q = mover.point(&p);
                 for (k, (v, t)) in [(q.x, to.x), (q.y, to.y), (q.z, to.z)]
                     .into_iter()
                     .enumerate()
                 {
                     let n = t.inverse(v).map_err(|e| {
-                        las_error(
-                            output,
-                            &format!("point {at} moved to ({}, {}, {})", q.x, q.y, q.z),
-                            e,
-                        )
+                        let what = format!("point {at} moved to ({}, {}, {})", q.x, q.y, q.z);
+                        las_error(output, &what, e)
                     })?;
                     r[4 * k..4 * k + 4].copy_from_slice(&n.to_le_bytes());
                 }
                 at += 1;
             }
             let data = PointDataBuilder::new()
-                .for_header(out)
+                .for_header(&out)
                 .build_from_bytes(raw)
                 .map_err(writing)?;
-            w.write_points(&data).map_err(writing)
-        })?;
-        let (w, _) = writer.ok_or_else(|| IoError::Empty {
-            path: input.to_path_buf(),
-        })?;
-        Ok(w.into_inner().map_err(writing)?.into_inner())
+            writer.write_points(&data).map_err(writing)?;
+        }
+        let bytes = writer.finish().map_err(writing)?;
+        Ok((
+            bytes,
+            MovedCloud {
+                points: at,
+                left_in_place: left,
+                fields: Fields::Kept,
+            },
+        ))
     })
 }
 

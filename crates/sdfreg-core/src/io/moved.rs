@@ -21,7 +21,7 @@ use std::path::Path;
 use nalgebra::{Point3, Similarity3, Vector3};
 
 use super::{Format, IoError};
-use crate::geometry::cloud::missing_returns;
+use crate::geometry::cloud::{missing_returns, missing_returns_of};
 
 /// How each point of a file is moved ([`write_moved_point_cloud`]).
 #[derive(Clone, Debug)]
@@ -38,6 +38,15 @@ impl Mover {
         Self {
             transform: *transform,
             origin_stays: missing_returns(points) > 0,
+        }
+    }
+
+    /// `transform` applied to the points of a file of which `at_origin` lie at exactly
+    /// (0, 0, 0).
+    pub(crate) fn with_origins(transform: &Similarity3<f64>, at_origin: usize) -> Self {
+        Self {
+            transform: *transform,
+            origin_stays: missing_returns_of(at_origin) > 0,
         }
     }
 
@@ -107,50 +116,56 @@ pub fn write_moved_point_cloud(
 ) -> Result<MovedCloud, IoError> {
     let (input, output) = (input.as_ref(), output.as_ref());
     let (from, to) = (Format::of(input)?, Format::of(output)?);
-    let points = super::read_any(input, true)?;
-    let mover = Mover::new(transform, &points);
-    let left_in_place = points.iter().filter(|p| mover.stays(p)).count();
-    let rewritten = if from != to {
-        Err(format!(
-            "{} holds coordinates only: its format is not that of {}",
-            output.display(),
-            input.display()
-        ))
+    let (bytes, moved) = if (from, to) == (Format::Las, Format::Las) {
+        // Decoded once: the records kept as they are read, then rewritten.
+        super::las::rewrite_moved(input, output, transform)?
     } else {
+        let points = super::read_any(input, true)?;
+        let mover = Mover::new(transform, &points);
+        let left_in_place = points.iter().filter(|p| mover.stays(p)).count();
         let read = || {
             std::fs::read(input).map_err(|source| IoError::Io {
                 path: input.to_path_buf(),
                 source,
             })
         };
-        match from {
-            Format::Las => Ok(super::las::rewrite_moved(input, &points, output, &mover)?),
-            Format::Ply => super::ply::rewrite_moved(input, &read()?, points.len(), &mover)?,
-            Format::Pcd => super::pcd::rewrite_moved(input, &read()?, points.len(), &mover)?,
-            Format::Xyz => Ok(super::xyz::rewrite_moved(input, &read()?, &mover)?),
-            Format::E57 => Err("E57 scans are written with their coordinates only".to_string()),
-        }
-    };
-    let (bytes, fields) = match rewritten {
-        Ok(bytes) => (bytes, Fields::Kept),
-        Err(reason) => {
-            let moved: Vec<Point3<f64>> = points.iter().map(|p| mover.point(p)).collect();
-            return super::write_point_cloud(output, &moved).map(|()| MovedCloud {
-                points: points.len(),
-                left_in_place,
-                fields: Fields::CoordinatesOnly(reason),
-            });
-        }
+        let n = points.len();
+        let rewritten = match (from == to).then_some(from) {
+            None => Err(format!(
+                "{} holds coordinates only: its format is not that of {}",
+                output.display(),
+                input.display()
+            )),
+            Some(Format::Ply) => super::ply::rewrite_moved(input, &read()?, n, &mover)?,
+            Some(Format::Pcd) => super::pcd::rewrite_moved(input, &read()?, n, &mover)?,
+            Some(Format::Xyz) => Ok(super::xyz::rewrite_moved(input, &read()?, &mover)?),
+            // E57 (LAS is rewritten above).
+            Some(_) => Err("E57 scans are written with their coordinates only".to_string()),
+        };
+        let bytes = match rewritten {
+            Ok(bytes) => bytes,
+            Err(reason) => {
+                let moved: Vec<Point3<f64>> = points.iter().map(|p| mover.point(p)).collect();
+                super::write_point_cloud(output, &moved)?;
+                return Ok(MovedCloud {
+                    points: n,
+                    left_in_place,
+                    fields: Fields::CoordinatesOnly(reason),
+                });
+            }
+        };
+        let moved = MovedCloud {
+            points: n,
+            left_in_place,
+            fields: Fields::Kept,
+        };
+        (bytes, moved)
     };
     std::fs::write(output, bytes).map_err(|source| IoError::Io {
         path: output.to_path_buf(),
         source,
     })?;
-    Ok(MovedCloud {
-        points: points.len(),
-        left_in_place,
-        fields,
-    })
+    Ok(moved)
 }
 
 /// A number of a text body (PLY or PCD ascii, text clouds) written anew: the shortest spelling
@@ -511,6 +526,24 @@ mod tests {
             .skip(1)
             .filter(|l| l.len() > 2)
             .all(|l| l.ends_with(" 9 1 2 3")));
+        std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    #[test]
+    fn fuzz_regression_a_las_record_of_a_sixth_return_is_an_error_not_a_panic() {
+        // Found by `cargo fuzz run moved`: a LAS 1.2 file whose record claims return 6, which
+        // its header cannot count; las-rs's writer panicked when dropped unclosed.
+        let d = dir("fuzz");
+        let input = d.join("six.las");
+        let bytes = include_bytes!("fuzz_regressions/las-return-six-in-1.2.las");
+        std::fs::write(&input, bytes).unwrap();
+        let err = write_moved_point_cloud(&input, d.join("out.las"), &transform(1.0))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("six.las") && err.contains("claims return"),
+            "{err}"
+        );
         std::fs::remove_dir_all(&d).unwrap();
     }
 
