@@ -553,7 +553,10 @@ pub(super) fn rewrite_moved(
     output: &Path,
     transform: &Similarity3<f64>,
 ) -> Result<(Vec<u8>, MovedCloud), IoError> {
-    let (file, _) = super::open(input)?;
+    let file = std::fs::File::open(input).map_err(|source| IoError::Io {
+        path: input.to_path_buf(),
+        source,
+    })?;
     let mut stream = std::io::BufReader::with_capacity(1 << 20, file);
     let decoding = preflight(input, &mut stream)?;
     let writing = |e: las::Error| las_error(output, "cannot write LAS", e);

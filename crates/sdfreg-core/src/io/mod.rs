@@ -15,15 +15,16 @@ mod ply;
 mod xyz;
 
 pub use e57::{E57Scan, E57ScanRef};
-pub use moved::{write_moved_point_cloud, Fields, MovedCloud};
+pub use moved::{Fields, MovedCloud};
 pub use ply::MeshData;
 
 use std::path::Path;
 
-use nalgebra::Point3;
+use nalgebra::{Point3, Similarity3};
 
 pub use crate::base::error::IoError;
 use finite::{drop_non_finite, refuse_non_finite};
+use moved::Mover;
 
 /// File formats known by extension.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -262,6 +263,83 @@ pub fn write_point_cloud(path: impl AsRef<Path>, points: &[Point3<f64>]) -> Resu
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// Writes the points of the cloud file `input` moved by `transform` (input coordinates into
+/// output ones: a registration's `[s R | t]`, source into target) to `output`.
+///
+/// When `output` has `input`'s format, the input's records are rewritten in place: the
+/// coordinates moved in their own type, the normals turned, every other field and element as
+/// the input holds it. PLY (ascii and binary: `x`, `y`, `z`, and `nx`, `ny`, `nz`), PCD (ascii
+/// and binary: `x`, `y`, `z`, `normal_x`, `normal_y`, `normal_z`, and the `VIEWPOINT`), LAS and
+/// LAZ (each record's other bytes, the header's records; each axis's scale unless the moved
+/// extent needs a coarser one) and text (the first three columns; the others as written).
+/// Otherwise, or when the layout does not allow it (a PCD's `binary_compressed` body, list or
+/// integer coordinates in a PLY, an E57 file), the moved coordinates alone, as
+/// [`write_point_cloud`] writes them, and [`MovedCloud::fields`] says why.
+///
+/// Missing returns at exactly (0, 0, 0) (when there are at least two, as
+/// [`crate::geometry::cloud::missing_returns`] counts them) and points with a NaN or infinite
+/// coordinate stay as they are, so an organised cloud keeps its marks. `input` is read in full
+/// (and checked as [`read_point_cloud`] checks it) before `output` is written, so they may be
+/// the same file. Overwrites an existing `output`: callers decide whether that is wanted.
+pub fn write_moved_point_cloud(
+    input: impl AsRef<Path>,
+    output: impl AsRef<Path>,
+    transform: &Similarity3<f64>,
+) -> Result<MovedCloud, IoError> {
+    let (input, output) = (input.as_ref(), output.as_ref());
+    let (from, to) = (Format::of(input)?, Format::of(output)?);
+    let (bytes, moved) = if (from, to) == (Format::Las, Format::Las) {
+        // Decoded once: the records kept as they are read, then rewritten.
+        las::rewrite_moved(input, output, transform)?
+    } else {
+        let points = read_any(input, true)?;
+        let mover = Mover::new(transform, &points);
+        let left_in_place = points.iter().filter(|p| mover.stays(p)).count();
+        let read = || {
+            std::fs::read(input).map_err(|source| IoError::Io {
+                path: input.to_path_buf(),
+                source,
+            })
+        };
+        let n = points.len();
+        let rewritten = match (from == to).then_some(from) {
+            None => Err(format!(
+                "{} holds coordinates only: its format is not that of {}",
+                output.display(),
+                input.display()
+            )),
+            Some(Format::Ply) => ply::rewrite_moved(input, &read()?, n, &mover)?,
+            Some(Format::Pcd) => pcd::rewrite_moved(input, &read()?, n, &mover)?,
+            Some(Format::Xyz) => Ok(xyz::rewrite_moved(input, &read()?, &mover)?),
+            // E57 (LAS is rewritten above).
+            Some(_) => Err("E57 scans are written with their coordinates only".to_string()),
+        };
+        let bytes = match rewritten {
+            Ok(bytes) => bytes,
+            Err(reason) => {
+                let moved: Vec<Point3<f64>> = points.iter().map(|p| mover.point(p)).collect();
+                write_point_cloud(output, &moved)?;
+                return Ok(MovedCloud {
+                    points: n,
+                    left_in_place,
+                    fields: Fields::CoordinatesOnly(reason),
+                });
+            }
+        };
+        let moved = MovedCloud {
+            points: n,
+            left_in_place,
+            fields: Fields::Kept,
+        };
+        (bytes, moved)
+    };
+    std::fs::write(output, bytes).map_err(|source| IoError::Io {
+        path: output.to_path_buf(),
+        source,
+    })?;
+    Ok(moved)
 }
 
 /// Writes scans as the scans of one E57 file, each with its name, its pose (into the file's

@@ -1,29 +1,12 @@
-//! A cloud file written moved, with everything else it holds: [`write_moved_point_cloud`].
-//!
-//! A registration's answer is a transformation; what a pipeline wants next is often the source
-//! file itself in the target's frame — with its intensities, colours, classes, GPS times and
-//! normals, not three columns of coordinates. When the output has the input's format, its
-//! records are rewritten in place: the coordinates moved (in their own type), the normals
-//! turned, every other field and element as the input holds it. PLY (ascii and binary: `x`,
-//! `y`, `z`, and `nx`, `ny`, `nz`), PCD (ascii and binary: `x`, `y`, `z`, `normal_x`,
-//! `normal_y`, `normal_z`, and the `VIEWPOINT`), LAS and LAZ (each record's other bytes, the
-//! header's records) and text (the first three columns; the others as written). Otherwise, or
-//! when a file's layout does not allow it (a PCD's `binary_compressed` body, list or integer
-//! coordinates in a PLY, an E57 file), the moved coordinates alone, as [`super::write_point_cloud`]
-//! writes them, and [`MovedCloud::fields`] says why.
-//!
-//! Points that are not places are left as they are: missing returns at exactly (0, 0, 0) (when
-//! there are at least two, as [`crate::geometry::cloud::missing_returns`] counts them) and
-//! points with a NaN or infinite coordinate, so an organised cloud keeps its marks.
-
-use std::path::Path;
+//! A cloud file written moved, with everything else it holds: how each point moves, for the
+//! formats' rewriters and [`crate::io::write_moved_point_cloud`] (whose notes say what each
+//! format keeps).
 
 use nalgebra::{Point3, Similarity3, Vector3};
 
-use super::{Format, IoError};
 use crate::geometry::cloud::{missing_returns, missing_returns_of};
 
-/// How each point of a file is moved ([`write_moved_point_cloud`]).
+/// How each point of a file is moved ([`crate::io::write_moved_point_cloud`]).
 #[derive(Clone, Debug)]
 pub(crate) struct Mover {
     /// Maps the input's coordinates into the output's.
@@ -80,7 +63,7 @@ impl Mover {
     }
 }
 
-/// What [`write_moved_point_cloud`] wrote.
+/// What [`crate::io::write_moved_point_cloud`] wrote.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MovedCloud {
     /// Points written (every point of the input, in its order).
@@ -102,72 +85,6 @@ pub enum Fields {
     CoordinatesOnly(String),
 }
 
-/// Writes the points of the cloud file `input` moved by `transform` (input coordinates into
-/// output ones: a registration's `[s R | t]`, source into target) to `output`, keeping every
-/// other field of each point when `output` has `input`'s format (see the module's notes);
-/// else the moved coordinates alone, in `output`'s format. Missing returns at (0, 0, 0) and
-/// non-finite points stay as they are. `input` is read in full (and checked as
-/// [`super::read_point_cloud`] checks it) before `output` is written, so they may be the same
-/// file. Overwrites an existing `output`: callers decide whether that is wanted.
-pub fn write_moved_point_cloud(
-    input: impl AsRef<Path>,
-    output: impl AsRef<Path>,
-    transform: &Similarity3<f64>,
-) -> Result<MovedCloud, IoError> {
-    let (input, output) = (input.as_ref(), output.as_ref());
-    let (from, to) = (Format::of(input)?, Format::of(output)?);
-    let (bytes, moved) = if (from, to) == (Format::Las, Format::Las) {
-        // Decoded once: the records kept as they are read, then rewritten.
-        super::las::rewrite_moved(input, output, transform)?
-    } else {
-        let points = super::read_any(input, true)?;
-        let mover = Mover::new(transform, &points);
-        let left_in_place = points.iter().filter(|p| mover.stays(p)).count();
-        let read = || {
-            std::fs::read(input).map_err(|source| IoError::Io {
-                path: input.to_path_buf(),
-                source,
-            })
-        };
-        let n = points.len();
-        let rewritten = match (from == to).then_some(from) {
-            None => Err(format!(
-                "{} holds coordinates only: its format is not that of {}",
-                output.display(),
-                input.display()
-            )),
-            Some(Format::Ply) => super::ply::rewrite_moved(input, &read()?, n, &mover)?,
-            Some(Format::Pcd) => super::pcd::rewrite_moved(input, &read()?, n, &mover)?,
-            Some(Format::Xyz) => Ok(super::xyz::rewrite_moved(input, &read()?, &mover)?),
-            // E57 (LAS is rewritten above).
-            Some(_) => Err("E57 scans are written with their coordinates only".to_string()),
-        };
-        let bytes = match rewritten {
-            Ok(bytes) => bytes,
-            Err(reason) => {
-                let moved: Vec<Point3<f64>> = points.iter().map(|p| mover.point(p)).collect();
-                super::write_point_cloud(output, &moved)?;
-                return Ok(MovedCloud {
-                    points: n,
-                    left_in_place,
-                    fields: Fields::CoordinatesOnly(reason),
-                });
-            }
-        };
-        let moved = MovedCloud {
-            points: n,
-            left_in_place,
-            fields: Fields::Kept,
-        };
-        (bytes, moved)
-    };
-    std::fs::write(output, bytes).map_err(|source| IoError::Io {
-        path: output.to_path_buf(),
-        source,
-    })?;
-    Ok(moved)
-}
-
 /// A number of a text body (PLY or PCD ascii, text clouds) written anew: the shortest spelling
 /// that reads back to the value, in `f32` when the field is 4 bytes.
 pub(crate) fn spelled(v: f64, single: bool) -> String {
@@ -181,8 +98,10 @@ pub(crate) fn spelled(v: f64, single: bool) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::write_moved_point_cloud;
     use nalgebra::{Translation3, UnitQuaternion};
     use ply_rs_bw::ply::{DefaultElement, Property};
+    use std::path::Path;
 
     /// A turn of 30° about (1, 2, 3), a shift, and `scale`.
     fn transform(scale: f64) -> Similarity3<f64> {
@@ -311,9 +230,9 @@ mod tests {
                     fields: Fields::Kept
                 }
             );
-            let as_read: Vec<Point3<f64>> = super::super::read_point_cloud(&input).unwrap();
+            let as_read: Vec<Point3<f64>> = crate::io::read_point_cloud(&input).unwrap();
             assert_moved(
-                &super::super::read_point_cloud(&output).unwrap(),
+                &crate::io::read_point_cloud(&output).unwrap(),
                 &as_read,
                 &t,
                 1e-5,
@@ -375,9 +294,9 @@ mod tests {
             std::fs::write(&input, &bytes).unwrap();
             let moved = write_moved_point_cloud(&input, &output, &t).unwrap();
             assert_eq!(moved.fields, Fields::Kept);
-            let as_read = super::super::read_point_cloud(&input).unwrap();
+            let as_read = crate::io::read_point_cloud(&input).unwrap();
             assert_moved(
-                &super::super::read_point_cloud(&output).unwrap(),
+                &crate::io::read_point_cloud(&output).unwrap(),
                 &as_read,
                 &t,
                 1e-5,
@@ -460,10 +379,10 @@ mod tests {
             let moved = write_moved_point_cloud(&input, &output, &t).unwrap();
             assert_eq!(moved.fields, Fields::Kept);
             assert_eq!(moved.left_in_place, 2);
-            let as_read = super::super::read_point_cloud(&input).unwrap();
+            let as_read = crate::io::read_point_cloud(&input).unwrap();
             // The file's own resolution: 1 mm across, 0.1 mm in z (turned: 1 mm).
             assert_moved(
-                &super::super::read_point_cloud(&output).unwrap(),
+                &crate::io::read_point_cloud(&output).unwrap(),
                 &as_read,
                 &t,
                 1e-3,
@@ -503,10 +422,10 @@ mod tests {
         assert_eq!(lines[3], "0,0,0,1\n");
         assert_eq!(lines[4], "0, 0, 0 ,2\n");
         assert!(lines[5].ends_with(",7\r\n"), "{}", lines[5]);
-        let got = super::super::read_point_cloud(&output).unwrap();
+        let got = crate::io::read_point_cloud(&output).unwrap();
         assert_moved(
             &got,
-            &super::super::read_point_cloud(&input).unwrap(),
+            &crate::io::read_point_cloud(&input).unwrap(),
             &t,
             1e-12,
         );
@@ -558,9 +477,9 @@ mod tests {
             matches!(&moved.fields, Fields::CoordinatesOnly(why) if why.contains("its format is not that of")),
             "{moved:?}"
         );
-        let as_read = super::super::read_point_cloud(&input).unwrap();
+        let as_read = crate::io::read_point_cloud(&input).unwrap();
         assert_moved(
-            &super::super::read_point_cloud(&output).unwrap(),
+            &crate::io::read_point_cloud(&output).unwrap(),
             &as_read,
             &t,
             1e-12,
