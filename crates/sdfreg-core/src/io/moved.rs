@@ -57,6 +57,29 @@ impl Mover {
         }
     }
 
+    /// A record's new coordinates and normal, as (field place, value) pairs, from its old
+    /// values (`get`, by field place): its coordinates at places `xyz`, its normal's at
+    /// `normal` (if it has one). `None` leaves the record as it is (a point that [`Self::stays`]).
+    pub(crate) fn record(
+        &self,
+        xyz: [usize; 3],
+        normal: Option<[usize; 3]>,
+        get: &dyn Fn(usize) -> f64,
+    ) -> Option<Vec<(usize, f64)>> {
+        let [x, y, z] = xyz;
+        let p = Point3::new(get(x), get(y), get(z));
+        if self.stays(&p) {
+            return None;
+        }
+        let q = self.point(&p);
+        let mut out = vec![(x, q.x), (y, q.y), (z, q.z)];
+        if let Some([a, b, c]) = normal {
+            let m = self.normal(&Vector3::new(get(a), get(b), get(c)));
+            out.extend([(a, m.x), (b, m.y), (c, m.z)]);
+        }
+        Some(out)
+    }
+
     /// The transform.
     pub(crate) fn transform(&self) -> &Similarity3<f64> {
         &self.transform

@@ -664,20 +664,7 @@ pub(super) fn rewrite_moved(
         .into_iter()
         .chain(normal.into_iter().flatten())
         .collect();
-    // The new values of one row from its old ones (by property place): `None` leaves it.
-    let moved = |get: &dyn Fn(usize) -> f64| -> Option<Vec<(usize, f64)>> {
-        let p = Point3::new(get(x), get(y), get(z));
-        if mover.stays(&p) {
-            return None;
-        }
-        let q = mover.point(&p);
-        let mut out = vec![(x, q.x), (y, q.y), (z, q.z)];
-        if let Some([a, b, c]) = normal {
-            let m = mover.normal(&nalgebra::Vector3::new(get(a), get(b), get(c)));
-            out.extend([(a, m.x), (b, m.y), (c, m.z)]);
-        }
-        Some(out)
-    };
+    let moved = |get: &dyn Fn(usize) -> f64| mover.record([x, y, z], normal, get);
     let mut out = bytes[..start].to_vec();
     let body = &bytes[start..];
     if header.encoding == Encoding::Ascii {
