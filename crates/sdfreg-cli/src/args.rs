@@ -578,9 +578,14 @@ pub struct TransformArgs {
     /// coordinates alone.
     pub output: PathBuf,
     /// The 4×4 `[s R | t]` mapping INPUT's coordinates into OUTPUT's: a text file of 16 numbers
-    /// (what `register` prints), or `register --output`'s .json.
+    /// (what `register` prints), `register --output`'s .json, or `align --output`'s poses.json
+    /// (the pose of the scan whose file is INPUT, into the anchor's frame).
     #[arg(long, short)]
     pub transformation: PathBuf,
+    /// With a poses file: take its scan K (0-based, in the file's order) instead of the one whose
+    /// file is INPUT.
+    #[arg(long, value_name = "K")]
+    pub scan: Option<usize>,
     /// Apply the inverse of --transformation (a target moved into its source's frame).
     #[arg(long)]
     pub inverse: bool,

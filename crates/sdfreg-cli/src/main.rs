@@ -400,10 +400,92 @@ fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
     }
 }
 
+/// The JSON of `path` when it is a poses file (`sdfreg align --output`: a `scans` list and no
+/// top-level `transformation`), else `None` (a text matrix, `register --output`'s JSON).
+fn poses_file_of(path: &Path) -> Result<Option<serde_json::Value>> {
+    if !path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+    let json: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    Ok((json.get("transformation").is_none() && json.get("scans").is_some()).then_some(json))
+}
+
+/// The 4×4 of a scan in the poses file `path` (its JSON `poses`): scan `scan` when given, else
+/// the one whose `file` is `input` (the same file, however spelled); refused by name when there
+/// is none, more than one (an E57 file's scans: name one with --scan) or it was left out.
+fn pose_of_scan(
+    path: &Path,
+    poses: &serde_json::Value,
+    input: &Path,
+    scan: Option<usize>,
+) -> Result<Matrix4<f64>> {
+    let checked = sdfreg_core::views::poses_file::read_poses(poses.to_string().as_bytes(), path)?;
+    let files: Vec<&str> = poses["scans"]
+        .as_array()
+        .map(|s| s.iter().map(|v| v["file"].as_str().unwrap_or("")).collect())
+        .unwrap_or_default();
+    let k = match scan {
+        Some(k) if k < checked.len() => k,
+        Some(k) => bail!(
+            "--scan {k}: {} holds {} scans (0 to {})",
+            path.display(),
+            checked.len(),
+            checked.len().saturating_sub(1)
+        ),
+        None => {
+            let hits: Vec<usize> = (0..files.len())
+                .filter(|&k| same_file(Path::new(files[k]), input))
+                .collect();
+            match hits[..] {
+                [k] => k,
+                [] => bail!(
+                    "{}: no scan of {} is {}; name one with --scan K",
+                    path.display(),
+                    path.display(),
+                    input.display()
+                ),
+                _ => bail!(
+                    "{}: {} holds {} of its scans; name one with --scan K",
+                    path.display(),
+                    input.display(),
+                    hits.len()
+                ),
+            }
+        }
+    };
+    if poses["scans"][k].get("scan").is_some() {
+        bail!(
+            "{}: scan {k} is one of the scans of the E57 file {}, which is moved as a whole; `sdfreg align --aligned FILE.e57` writes its scans posed",
+            path.display(),
+            files.get(k).copied().unwrap_or("")
+        );
+    }
+    match checked[k] {
+        Some(pose) => Ok(pose.to_homogeneous()),
+        None => bail!(
+            "{}: scan {k} ({}) was left out of the alignment: it has no transformation",
+            path.display(),
+            files.get(k).copied().unwrap_or("")
+        ),
+    }
+}
+
 /// `sdfreg transform`: INPUT moved by the transformation (or its inverse) to OUTPUT.
 fn cmd_transform(a: TransformArgs) -> Result<()> {
     refuse_overwrite(&a.output, &[a.input.as_path()], a.force)?;
-    let m = read_transformation(&a.transformation)?;
+    let m = match poses_file_of(&a.transformation)? {
+        Some(poses) => pose_of_scan(&a.transformation, &poses, &a.input, a.scan)?,
+        None if a.scan.is_some() => bail!(
+            "--scan: {} is not a poses file (`sdfreg align --output`)",
+            a.transformation.display()
+        ),
+        None => read_transformation(&a.transformation)?,
+    };
     let (rigid, scale) = sdfreg_core::geometry::se3::similarity_from_matrix(&m).with_context(|| {
         format!(
             "{}: the matrix is not a similarity (its 3×3 block must be a positive scale times a rotation, its last row 0 0 0 1)",

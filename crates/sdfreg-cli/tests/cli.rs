@@ -1824,6 +1824,57 @@ fn transform_moves_a_file_with_its_fields_and_back() {
     let out = run(&moved, &back, &["--inverse"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("back.ply: exists; pass --force"));
+    // From a poses file (`sdfreg align --output`): the pose of the scan whose file is INPUT,
+    // or of scan K; a scan left out has none, a file that is none of its scans is named.
+    let poses = dir.path().join("poses.json");
+    let turn = "[[0, -1, 0, 0.5], [1, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]";
+    let file = input.display().to_string().replace('\\', "/");
+    std::fs::write(&poses, format!("{{\"format\": \"sdfreg-poses\", \"version\": 1, \"scans\": [{{\"file\": \"other.ply\", \"transformation\": null, \"left_out\": \"fits nowhere\"}}, {{\"file\": \"{file}\", \"transformation\": {turn}}}]}}")).unwrap();
+    let run_poses = |to: &Path, extra: &[&str]| {
+        sdfreg()
+            .arg("transform")
+            .arg(&input)
+            .arg(to)
+            .arg("-t")
+            .arg(&poses)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let posed = dir.path().join("posed.ply");
+    let out = run_poses(&posed, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for (v, p) in rows(&posed).iter().zip(&points) {
+        let want = [-p[1] + 0.5, p[0], p[2]];
+        assert!(
+            (0..3).all(|k| (v[k] - want[k]).abs() < 1e-12),
+            "{v:?} against {want:?}"
+        );
+    }
+    let out = run_poses(&posed, &["--force", "--scan", "0"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("scan 0 (other.ply) was left out"),
+        "{stderr}"
+    );
+    let out = sdfreg()
+        .arg("transform")
+        .arg(&moved)
+        .arg(dir.path().join("x.ply"))
+        .arg("-t")
+        .arg(&poses)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("no scan of") && stderr.contains("--scan K"),
+        "{stderr}"
+    );
     std::fs::write(&matrix, "1 0 0 0\n0 2 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
     let out = run(&input, &back, &["--force"]);
     assert!(!out.status.success());
