@@ -381,15 +381,28 @@ fn evaluation_json(e: &sdfreg_core::Evaluation) -> serde_json::Value {
 /// A 4×4 mapping source into target: `register --output`'s JSON (its `transformation`) when the
 /// file ends in `.json`, else a text file of 16 numbers ([`read_matrix4`]).
 fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
+    match read_json(path)? {
+        Some((_, json)) => transformation_in(path, &json),
+        None => read_matrix4(path),
+    }
+}
+
+/// The text of `path` and its JSON when the file ends in `.json`, else `None`.
+fn read_json(path: &Path) -> Result<Option<(String, serde_json::Value)>> {
     if !path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("json"))
     {
-        return read_matrix4(path);
+        return Ok(None);
     }
     let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
     let json: serde_json::Value =
         serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
+    Ok(Some((text, json)))
+}
+
+/// The `transformation` of `register --output`'s JSON (`json`, read from `path`).
+fn transformation_in(path: &Path, json: &serde_json::Value) -> Result<Matrix4<f64>> {
     match sdfreg_core::geometry::se3::matrix_from_rows(&json["transformation"]) {
         Some(m) => Ok(m),
         None => bail!(
@@ -400,31 +413,24 @@ fn read_transformation(path: &Path) -> Result<Matrix4<f64>> {
     }
 }
 
-/// The JSON of `path` when it is a poses file (`sdfreg align --output`: a `scans` list and no
-/// top-level `transformation`), else `None` (a text matrix, `register --output`'s JSON).
-fn poses_file_of(path: &Path) -> Result<Option<serde_json::Value>> {
-    if !path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
-    {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
-    let json: serde_json::Value =
-        serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))?;
-    Ok((json.get("transformation").is_none() && json.get("scans").is_some()).then_some(json))
+/// Whether `json` is a poses file's (`sdfreg align --output`: a `scans` list and no top-level
+/// `transformation`).
+fn is_poses_file(json: &serde_json::Value) -> bool {
+    json.get("transformation").is_none() && json.get("scans").is_some()
 }
 
-/// The 4×4 of a scan in the poses file `path` (its JSON `poses`): scan `scan` when given, else
-/// the one whose `file` is `input` (the same file, however spelled); refused by name when there
-/// is none, more than one (an E57 file's scans: name one with --scan) or it was left out.
+/// The 4×4 of a scan in the poses file `path` (its `text`, and its JSON `poses`): scan `scan`
+/// when given, else the one whose `file` is `input` (the same file, however spelled); refused by
+/// name when there is none, more than one (an E57 file's scans: name one with --scan) or it was
+/// left out.
 fn pose_of_scan(
     path: &Path,
+    text: &str,
     poses: &serde_json::Value,
     input: &Path,
     scan: Option<usize>,
 ) -> Result<Matrix4<f64>> {
-    let checked = sdfreg_core::views::poses_file::read_poses(poses.to_string().as_bytes(), path)?;
+    let checked = sdfreg_core::views::poses_file::read_poses(text.as_bytes(), path)?;
     let files: Vec<&str> = poses["scans"]
         .as_array()
         .map(|s| s.iter().map(|v| v["file"].as_str().unwrap_or("")).collect())
@@ -478,13 +484,17 @@ fn pose_of_scan(
 /// `sdfreg transform`: INPUT moved by the transformation (or its inverse) to OUTPUT.
 fn cmd_transform(a: TransformArgs) -> Result<()> {
     refuse_overwrite(&a.output, &[a.input.as_path()], a.force)?;
-    let m = match poses_file_of(&a.transformation)? {
-        Some(poses) => pose_of_scan(&a.transformation, &poses, &a.input, a.scan)?,
-        None if a.scan.is_some() => bail!(
+    let path = &a.transformation;
+    let m = match read_json(path)? {
+        Some((text, json)) if is_poses_file(&json) => {
+            pose_of_scan(path, &text, &json, &a.input, a.scan)?
+        }
+        _ if a.scan.is_some() => bail!(
             "--scan: {} is not a poses file (`sdfreg align --output`)",
-            a.transformation.display()
+            path.display()
         ),
-        None => read_transformation(&a.transformation)?,
+        Some((_, json)) => transformation_in(path, &json)?,
+        None => read_matrix4(path)?,
     };
     let (rigid, scale) = sdfreg_core::geometry::se3::similarity_from_matrix(&m).with_context(|| {
         format!(

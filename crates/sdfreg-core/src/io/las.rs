@@ -354,16 +354,19 @@ fn decode(
 ) -> Result<Vec<Point3<f64>>, IoError> {
     let mut points = Vec::new();
     decode_chunks(path, stream, decoding, bytes, |_, chunk| {
-        points.extend(
-            chunk
-                .x()
-                .zip(chunk.y())
-                .zip(chunk.z())
-                .map(|((x, y), z)| Point3::new(x, y, z)),
-        );
+        points.extend(points_of(&chunk));
         Ok(())
     })?;
     Ok(points)
+}
+
+/// The points of a chunk of records, scaled and offset.
+fn points_of(chunk: &PointData) -> impl Iterator<Item = Point3<f64>> + '_ {
+    chunk
+        .x()
+        .zip(chunk.y())
+        .zip(chunk.z())
+        .map(|((x, y), z)| Point3::new(x, y, z))
 }
 
 /// The records of a LAS stream that [`preflight`] has checked, decoded as it said, `bytes` of
@@ -599,32 +602,25 @@ pub(super) fn rewrite_moved(
                 at += c.len();
             }
         }
-        let xyz = |c: &PointData| {
-            let (x, y, z) = (c.x().collect::<Vec<_>>(), c.y(), c.z());
-            x.into_iter()
-                .zip(y)
-                .zip(z)
-                .map(|((x, y), z)| Point3::new(x, y, z))
-                .collect::<Vec<_>>()
-        };
-        let at_origin = chunks
-            .iter()
-            .map(|c| {
-                xyz(c)
-                    .iter()
-                    .filter(|p| p.coords == Vector3::zeros())
-                    .count()
-            })
-            .sum();
-        let mover = Mover::with_origins(transform, at_origin);
+        // The moved points' bounds, and how many lie at the origin (missing returns when
+        // there are at least two: they stay there), in one pass.
+        let mut at_origin = 0;
         let mut lo = Point3::from([f64::INFINITY; 3]);
         let mut hi = Point3::from([f64::NEG_INFINITY; 3]);
-        for c in &chunks {
-            for p in xyz(c) {
-                let q = mover.point(&p);
-                lo = lo.inf(&q);
-                hi = hi.sup(&q);
+        for p in chunks.iter().flat_map(points_of) {
+            if p.coords == Vector3::zeros() {
+                at_origin += 1;
+                continue;
             }
+            let q = transform * p;
+            lo = lo.inf(&q);
+            hi = hi.sup(&q);
+        }
+        let mover = Mover::with_origins(transform, at_origin);
+        if at_origin > 0 {
+            let q = mover.point(&Point3::origin());
+            lo = lo.inf(&q);
+            hi = hi.sup(&q);
         }
         let mut builder = Builder::from(header.clone());
         let t = header.transforms();
